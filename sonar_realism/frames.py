@@ -1,0 +1,160 @@
+"""The one frame type that flows through everything: a polar sonar image with its geometry.
+
+Layout: `intensity[range_bin, beam]` (row = range bin, nearest first; column = beam, left to right),
+or `intensity[sample, range_bin, beam]` when a translator returns several samples of one input.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sonar_realism.errors import FrameError
+
+SUPPORTED_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.uint32), np.dtype(np.float32),
+                    np.dtype(np.float64))
+
+# Full-scale value of each integer sample width; floats are normalised to [0, 1] unless told otherwise.
+DEFAULT_INTENSITY_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0,
+                           np.dtype(np.uint32): 4294967295.0, np.dtype(np.float32): 1.0,
+                           np.dtype(np.float64): 1.0}
+
+
+@dataclass(frozen=True, eq=False)
+class SonarImage:
+    """A polar sonar frame.
+
+    intensity:       array [n_ranges, n_beams] or [n_samples, n_ranges, n_beams], one of SUPPORTED_DTYPES.
+                     Float frames must be finite: NaN/inf are rejected (policy: a reader that meets them
+                     raises FormatError naming the file; nothing silently turns them into numbers).
+    ranges_m:        range of each row's centre, metres, strictly increasing, >= 0.
+    azimuths_rad:    bearing of each beam's centre, radians, strictly increasing (left to right). Oculus
+                     bearing tables are not uniform, so this is per beam, never (min, max).
+    stamp_ns:        acquisition time, ns since the Unix epoch (0 when unknown).
+    seq:             sequence number from the source (ping id, frame counter).
+    frame_id:        sensor frame name, as in ROS.
+    intensity_scale: the intensity value that means full scale (255 for 8-bit, 1.0 for normalised floats).
+    meta:            ping metadata, JSON-able: frequency_hz, sound_speed_mps, gain_percent,
+                     range_resolution_m, vertical_aperture_rad, source, provenance, ...
+    """
+
+    intensity: np.ndarray
+    ranges_m: np.ndarray
+    azimuths_rad: np.ndarray
+    stamp_ns: int = 0
+    seq: int = 0
+    frame_id: str = "sonar"
+    intensity_scale: float = 0.0  # 0 selects the dtype's default (DEFAULT_INTENSITY_SCALE)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        intensity = self.intensity
+        if not isinstance(intensity, np.ndarray):
+            raise FrameError(f"intensity: expected a numpy array, got {type(intensity).__name__}")
+        if intensity.dtype.newbyteorder("=") not in SUPPORTED_DTYPES:
+            raise FrameError(f"intensity: unsupported dtype {intensity.dtype}; "
+                             f"supported: {', '.join(str(d) for d in SUPPORTED_DTYPES)}")
+        if intensity.ndim not in (2, 3):
+            raise FrameError(f"intensity: expected [ranges, beams] or [samples, ranges, beams], "
+                             f"got shape {intensity.shape}")
+        if min(intensity.shape) == 0:
+            raise FrameError(f"intensity: empty shape {intensity.shape}")
+        if intensity.dtype.kind == "f" and not np.isfinite(intensity).all():
+            raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
+
+        ranges = _as_axis(self.ranges_m, "ranges_m", intensity.shape[-2])
+        azimuths = _as_axis(self.azimuths_rad, "azimuths_rad", intensity.shape[-1])
+        if ranges[0] < 0:
+            raise FrameError(f"ranges_m: negative range {ranges[0]}")
+        if np.abs(azimuths).max() > math.pi:
+            raise FrameError("azimuths_rad: bearings beyond ±180° (are they in degrees?)")
+        object.__setattr__(self, "ranges_m", ranges)
+        object.__setattr__(self, "azimuths_rad", azimuths)
+
+        if not isinstance(self.stamp_ns, int | np.integer) or self.stamp_ns < 0:
+            raise FrameError(f"stamp_ns: expected a non-negative int, got {self.stamp_ns!r}")
+        if not isinstance(self.seq, int | np.integer) or self.seq < 0:
+            raise FrameError(f"seq: expected a non-negative int, got {self.seq!r}")
+        object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
+        object.__setattr__(self, "seq", int(self.seq))
+        if not isinstance(self.frame_id, str):
+            raise FrameError(f"frame_id: expected str, got {type(self.frame_id).__name__}")
+        scale = float(self.intensity_scale) or DEFAULT_INTENSITY_SCALE[intensity.dtype.newbyteorder("=")]
+        if not math.isfinite(scale) or scale <= 0:
+            raise FrameError(f"intensity_scale: expected a positive finite number, got {self.intensity_scale}")
+        object.__setattr__(self, "intensity_scale", scale)
+        if not isinstance(self.meta, dict) or not all(isinstance(k, str) for k in self.meta):
+            raise FrameError("meta: expected a dict with str keys")
+
+    @property
+    def n_ranges(self) -> int:
+        return self.intensity.shape[-2]
+
+    @property
+    def n_beams(self) -> int:
+        return self.intensity.shape[-1]
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples on the leading axis (1 for a plain [ranges, beams] frame)."""
+        return self.intensity.shape[0] if self.intensity.ndim == 3 else 1
+
+    @property
+    def max_range_m(self) -> float:
+        return float(self.ranges_m[-1])
+
+    @property
+    def range_resolution_m(self) -> float:
+        return float(np.median(np.diff(self.ranges_m))) if self.n_ranges > 1 else float(self.ranges_m[0])
+
+    @property
+    def fov_rad(self) -> float:
+        return float(self.azimuths_rad[-1] - self.azimuths_rad[0])
+
+    def normalized(self) -> np.ndarray:
+        """Intensity as float32 in [0, 1] (values above full scale clipped)."""
+        out = self.intensity.astype(np.float32) / np.float32(self.intensity_scale)
+        return np.clip(out, 0.0, 1.0, out=out)
+
+    def sample(self, index: int) -> SonarImage:
+        """One sample of a multi-sample frame, as a plain [ranges, beams] frame."""
+        if self.intensity.ndim != 3:
+            raise FrameError("sample(): this frame has no sample axis")
+        return self.replace(intensity=self.intensity[index])
+
+    def replace(self, **changes: Any) -> SonarImage:
+        """A copy with some fields changed, validated again."""
+        return dataclasses.replace(self, **changes)
+
+    def same_geometry(self, other: SonarImage, atol: float = 1e-6) -> bool:
+        return (self.n_ranges == other.n_ranges and self.n_beams == other.n_beams
+                and np.allclose(self.ranges_m, other.ranges_m, atol=atol)
+                and np.allclose(self.azimuths_rad, other.azimuths_rad, atol=atol))
+
+
+def _as_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+    axis = np.asarray(values, dtype=np.float64)
+    if axis.ndim != 1 or axis.shape[0] != expected_len:
+        raise FrameError(f"{name}: expected {expected_len} values (one per "
+                         f"{'range bin' if name == 'ranges_m' else 'beam'}), got shape {axis.shape}")
+    if not np.isfinite(axis).all():
+        raise FrameError(f"{name}: NaN or inf")
+    if expected_len > 1 and not (np.diff(axis) > 0).all():
+        raise FrameError(f"{name}: must be strictly increasing")
+    return axis
+
+
+def uniform_ranges(n_ranges: int, max_range_m: float, min_range_m: float = 0.0) -> np.ndarray:
+    """Centres of `n_ranges` equal range bins between min_range_m and max_range_m."""
+    step = (max_range_m - min_range_m) / n_ranges
+    return min_range_m + (np.arange(n_ranges) + 0.5) * step
+
+
+def uniform_azimuths(n_beams: int, fov_rad: float) -> np.ndarray:
+    """Centres of `n_beams` equal beams across a symmetric field of view."""
+    step = fov_rad / n_beams
+    return (np.arange(n_beams) - (n_beams - 1) / 2.0) * step
