@@ -1,0 +1,1 @@
+"""Realism evaluation: the paper's CNN real/sim score (Table I) and stronger metrics."""
