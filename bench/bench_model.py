@@ -1,0 +1,150 @@
+"""cDFCVAE translation speed: ms per input frame and samples/s for n = 1, 4, 16 at 128 × 128 and 256 beams ×
+512 ranges, against the CycleGAN generator (stock ResNet-9, one output per frame) at the same size.
+
+    python bench/bench_model.py            (or: python bench/run.py model)
+    python bench/bench_model.py --diversity   (sample diversity with 0, 2, 3 skip connections; trains small models)
+
+A row times `Translator.translate([frame], n)` end to end (normalisation, encode once, n decodes, output
+frame) for a frame already on the model grid, i.e. the streaming case of one ping at a time. The shipped
+checkpoint's architecture is used (the paper's widths 32-32-64-128 as an extra row at 128 × 128, n = 4).
+The CycleGAN baseline runs in the same blocks, alternating, so a busy machine hurts both alike.
+Goal: 40 frames/s with n = 4 at 128 × 128 on the CPU. With CUDA available, GPU rows are added.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges  # noqa: E402
+from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint  # noqa: E402
+from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # noqa: E402
+
+GRIDS = ((128, 128), (512, 256))  # (n_ranges, n_beams)
+SAMPLES = (1, 4, 16)
+GOAL_FPS_N4_128 = 40.0
+REAL_DATA = "/work/shared/data/real/oculus_polar_seabed/dataset"
+
+
+def _timed(fn: Callable[[], object], repeats: int) -> float:
+    """Median seconds of `repeats` calls after one warm-up."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - started)
+    return statistics.median(times)
+
+
+def _cyclegan_generator() -> torch.nn.Module | None:
+    try:
+        from sonar_realism.models.cyclegan import ResnetGenerator
+    except ImportError:
+        return None
+    return ResnetGenerator().eval()
+
+
+def _shipped_config() -> CDFCVAEConfig:
+    if DEFAULT_CHECKPOINT.exists():
+        return load_checkpoint(DEFAULT_CHECKPOINT)[0].cfg
+    return CDFCVAEConfig()
+
+
+def _frame(grid: tuple[int, int]) -> SonarImage:
+    rng = np.random.default_rng(0)
+    return SonarImage(rng.integers(0, 255, grid, dtype=np.uint8), uniform_ranges(grid[0], 30.0),
+                      uniform_azimuths(grid[1], np.radians(130)))
+
+
+def run() -> list[dict]:
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    shipped = _shipped_config()
+    generator = _cyclegan_generator()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for device in devices:
+            for grid in GRIDS:
+                variants = [("shipped " + "-".join(map(str, shipped.widths)), dataclasses.replace(shipped, grid=grid))]
+                if grid == (128, 128):
+                    variants.append(("paper 32-32-64-128", dataclasses.replace(CDFCVAEConfig(), grid=grid)))
+                frame = _frame(grid)
+                repeats = 8 if grid == (128, 128) else 3
+                cyclegan_s = None
+                if generator is not None:
+                    g = generator.to(device)
+                    x = torch.rand(1, 1, *grid, device=device) * 2 - 1
+
+                    def cyclegan_step(g: torch.nn.Module = g, x: torch.Tensor = x, device: str = device) -> None:
+                        with torch.inference_mode():
+                            g(x)
+                        if device == "cuda":
+                            torch.cuda.synchronize()
+
+                    cyclegan_s = _timed(cyclegan_step, repeats)
+                for label, cfg in variants:
+                    path = save_checkpoint(CDFCVAE(cfg), Path(tmp) / f"{label.replace(' ', '_')}.safetensors")
+                    translator = Translator.from_checkpoint(path, device=device)
+                    for n in SAMPLES if label.startswith("shipped") else (4,):
+                        seconds = _timed(lambda t=translator, n=n, f=frame: t.translate([f], n, seed=0), repeats)
+                        row = {"device": device, "grid (R x B)": f"{grid[0]}x{grid[1]}", "model": label, "n": n,
+                               "ms/frame": 1e3 * seconds, "frames/s": 1.0 / seconds, "samples/s": n / seconds}
+                        if cyclegan_s is not None:
+                            row["cyclegan ms/frame"] = 1e3 * cyclegan_s
+                            row["time vs cyclegan"] = seconds / cyclegan_s
+                        else:
+                            row["cyclegan ms/frame"] = "n/a (sonar_realism.models.cyclegan missing)"
+                        if device == "cpu" and grid == (128, 128) and n == 4:
+                            row["goal 40 frames/s"] = "met" if 1.0 / seconds >= GOAL_FPS_N4_128 else "missed"
+                        rows.append(row)
+                        print(row, file=sys.stderr)
+    return rows
+
+
+def diversity(real: str = REAL_DATA, skips_options: tuple[int, ...] = (0, 2, 3), epochs: int = 3,
+              max_frames: int = 120) -> list[dict]:
+    """Sample diversity with and without skip connections: small models (64 × 64, widths 8-16-32-64) trained
+    `epochs` epochs (cycle 1 only) on the first `max_frames` real frames, then 8 samples of each validation
+    frame at temperature 1. Reports the mean per-pixel std across samples and its ratio to the pixel std
+    of the validation images themselves (1 = samples as different as different frames)."""
+    from sonar_realism.datasets import load_grid_frames
+    from sonar_realism.train import TrainConfig, fit
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for skips in skips_options:
+            model = CDFCVAEConfig(grid=(64, 64), widths=(8, 16, 32, 64), skips=skips, upsample="resize_conv")
+            cfg = TrainConfig(model=model, epochs1=epochs, epochs2=0, max_frames=max_frames, batch_size=16)
+            run_dir = Path(tmp) / f"skips{skips}"
+            fit(cfg, real, None, run_dir, device="cpu", progress=False)
+            translator = Translator.from_checkpoint(run_dir / "model.safetensors", device="cpu")
+            val = load_grid_frames(real, (64, 64), max_frames=max_frames)
+            frames = [SonarImage(image, uniform_ranges(64, 30.0), uniform_azimuths(64, np.radians(130)))
+                      for image in val.images[-16:]]
+            samples = np.stack([f.intensity for f in translator.translate(frames, 8, 1.0, seed=0)])
+            per_pixel_std = float(samples.std(axis=1).mean())
+            data_std = float(np.stack([f.intensity for f in frames]).std())
+            rows.append({"skips": skips, "epochs": epochs, "per-pixel std across 8 samples": per_pixel_std,
+                         "ratio to image std": per_pixel_std / data_std,
+                         "posterior sigma (mean)": float(np.exp(0.5 * translator.model.encoder_sim(
+                             torch.from_numpy(val.images[-16:, None]))[1].detach()).mean())})
+            print(rows[-1], file=sys.stderr)
+    return rows
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from run import markdown
+
+    print(markdown(diversity() if "--diversity" in sys.argv else run()))

@@ -1,0 +1,52 @@
+"""translator: simulated frames in, n cDFCVAE samples per frame out ([n, ranges, beams] float32 in [0, 1])."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sonar_realism.errors import ConfigError
+from sonar_realism.frames import SonarImage
+from sonar_realism.runtime.node import Node
+from sonar_realism.runtime.translation import TranslationStage, file_sha256
+
+
+@dataclass(frozen=True)
+class TranslatorParams:
+    checkpoint: str = ""      # "" = the shipped checkpoint (sonar_realism.translate.DEFAULT_CHECKPOINT)
+    n: int = 4                # samples per input frame
+    temperature: float = 1.0  # latent scale: 0 = the mean image, 1 = the trained spread
+    seed: int = -1            # -1 = fresh randomness; >= 0 = reproducible (seed + seq of the batch's first frame)
+    batch: int = 4            # most frames per model call (a backlog is translated in batches)
+    device: str = "auto"      # "auto", "cpu", "cuda", "cuda:1", ...
+
+    def validate(self) -> None:
+        if self.n < 1 or self.batch < 1:
+            raise ConfigError(f"translator: n ({self.n}) and batch ({self.batch}) must be >= 1")
+        if self.temperature < 0:
+            raise ConfigError(f"translator: temperature must be >= 0, got {self.temperature}")
+
+
+class TranslatorNode(Node):
+    PARAMS = TranslatorParams
+    INPUTS = {"frames": ("polar",)}
+    OUTPUTS = {"frames": "polar_samples"}
+
+    def configure(self) -> None:
+        from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when this node runs
+
+        p: TranslatorParams = self.params
+        checkpoint = p.checkpoint or str(DEFAULT_CHECKPOINT)
+        translator = Translator.from_checkpoint(checkpoint, device=p.device)
+        self.stage = TranslationStage(translator, n=p.n, temperature=p.temperature,
+                                      seed=None if p.seed < 0 else p.seed,
+                                      checkpoint_sha256=file_sha256(checkpoint), node=self.name)
+        self.batch_size = p.batch
+
+    def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        outputs = self.stage(frames)
+        self.record_inference(self.stage.last_ms, len(frames))
+        for frame in outputs:
+            self.publish("frames", frame)
+
+
+NODE = TranslatorNode

@@ -1,0 +1,114 @@
+"""`sonar-realism evaluate`: Table I and the further metrics for one or more translators, as JSON + Markdown.
+
+    sonar-realism evaluate --real DIR [--sim DIR ...] --model CKPT [--model CKPT ...] --out DIR
+
+Without --sim the organic and constructed scenes are simulated here (with their object masks, which
+the mask-IoU metric needs). A model is a cDFCVAE checkpoint, a CycleGAN one (told apart by the JSON
+beside it), or "default" for the shipped cDFCVAE; NAME=CKPT sets the column name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sonar_realism.config import from_dict
+from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.progress import progress
+from sonar_realism.evaluate.suite import SimInput, SuiteConfig, Translator
+from sonar_realism.io import read_frames
+from sonar_realism.models.realism_cnn import RealismCNNConfig
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--real", required=True, help="real frames no translator trained on (folder or recording)")
+    parser.add_argument("--sim", action="append", default=[], metavar="DIR",
+                        help="simulated frames (repeatable); category = frame meta 'scene', else the folder name")
+    parser.add_argument("--scenes", default="organic,constructed",
+                        help="scenes to simulate when no --sim is given (default: organic,constructed)")
+    parser.add_argument("--n-sim", type=int, default=40, help="frames simulated per scene (default 40)")
+    parser.add_argument("--sim-effects", default="none", help="effects of the simulated inputs (default none)")
+    parser.add_argument("--model", action="append", default=[], metavar="[NAME=]CKPT",
+                        help="translator checkpoint (repeatable); 'default' = the shipped cDFCVAE")
+    parser.add_argument("--out", required=True, help="output folder (results.json, report.md, PNGs)")
+    parser.add_argument("--n", type=int, default=4, help="samples per input from each translator (default 4)")
+    parser.add_argument("--grid", default="128x128", help="model grid ROWSxCOLS (default 128x128)")
+    parser.add_argument("--max-real", type=int, default=None, help="use at most this many real frames")
+    parser.add_argument("--cnn-epochs", type=int, default=RealismCNNConfig.epochs, help="realism CNN epochs")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda)")
+
+
+def _parse_grid(text: str) -> tuple[int, int]:
+    try:
+        rows, cols = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"--grid: expected ROWSxCOLS like 128x128, got {text!r}") from exc
+    return rows, cols
+
+
+def load_translator(spec: str, device: str) -> tuple[str, Translator, str]:
+    """(column name, translator, checkpoint path) of a --model argument."""
+    from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
+
+    name, _, path = spec.rpartition("=")
+    if path == "default":
+        from sonar_realism.translate import DEFAULT_CHECKPOINT
+        path = str(DEFAULT_CHECKPOINT)
+    if not Path(path).exists():
+        raise ConfigError(f"--model: {path}: no such checkpoint")
+    if is_cyclegan_checkpoint(path):
+        return name or "cyclegan", CycleGANTranslator.from_checkpoint(path, device=device), path
+    from sonar_realism.translate import Translator as CDFCVAETranslator
+    return name or "cdfcvae", CDFCVAETranslator.from_checkpoint(path, device=device), path
+
+
+def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
+    if args.sim:
+        items = []
+        for folder in args.sim:
+            for frame in progress(read_frames(folder), f"read {folder}"):
+                items.append(SimInput(frame, str(frame.meta.get("scene") or Path(folder).name)))
+        return items
+    from sonar_realism.sim import simulate
+
+    items = []
+    for scene in [s.strip() for s in args.scenes.split(",") if s.strip()]:
+        effects = args.sim_effects if args.sim_effects in ("none", "all") else args.sim_effects.split(",")
+        for frame, mask in progress(simulate(scene=scene, effects=effects, n=args.n_sim, seed=args.seed),
+                                    f"simulate {scene}", total=args.n_sim):
+            items.append(SimInput(frame, scene, mask))
+    return items
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from sonar_realism.evaluate.report import write_report
+    from sonar_realism.evaluate.suite import run_suite
+
+    torch.manual_seed(args.seed)
+    grid = _parse_grid(args.grid)
+    config = from_dict(SuiteConfig, {"grid": list(grid), "n_samples": args.n, "seed": args.seed,
+                                     "cnn": {"grid": list(grid), "epochs": args.cnn_epochs}})
+    translators, paths = {}, {}
+    for spec in args.model:
+        name, translator, path = load_translator(spec, args.device)
+        if name in translators:
+            name = f"{name}-{Path(path).stem}"
+        translators[name], paths[name] = translator, path
+    real = []
+    for frame in progress(read_frames(args.real), "read real"):
+        real.append(frame)
+        if args.max_real and len(real) >= args.max_real:
+            break
+    sim = _sim_inputs(args)
+    result = run_suite(real, sim, translators, config, log=lambda line: print(line, file=sys.stderr))
+    report = write_report(result, args.out, {"real": str(args.real), "sim": args.sim or args.scenes,
+                                             "models": paths, "command": " ".join(sys.argv)})
+    print(f"report: {report}", file=sys.stderr)
+    table = result.summary["table"]["all"]
+    for name, cell in table.items():
+        print(f"{name:>18}: realism {cell['mean']:.3f} [{cell['ci_low']:.3f}, {cell['ci_high']:.3f}]")
+    return 0

@@ -1,0 +1,102 @@
+"""Reading and writing sonar recordings: one entry point that picks the reader from the content.
+
+`read_frames(path)` reads a single file or a folder: frames folders written by `write_frames`, Oculus
+`.oculus` logs and raw message streams (`sonar_realism.io.oculus`), NPZ files, PNG/TIFF polar images
+and Cartesian fan images with optional JSON sidecars. The reader is chosen by magic bytes, never by the
+extension alone. Everything streams: a frame is decoded when the iterator reaches it.
+
+Formats are described in docs/formats.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from sonar_realism.errors import FormatError
+from sonar_realism.frames import SonarImage
+from sonar_realism.io import folder, npz, oculus
+from sonar_realism.io.report import ReadReport
+
+__all__ = ["ReadReport", "read_frames", "write_frames", "sniff"]
+
+_HEAD_BYTES = 64
+
+
+def sniff(path: str | Path) -> str | None:
+    """What `path` holds: "frames-folder", "folder", "png", "tiff", "npz", "oculus_log", "oculus_raw", or None."""
+    path = Path(path)
+    if path.is_dir():
+        return "frames-folder" if folder.is_frames_folder(path) else "folder"
+    if path.name == folder.INDEX_NAME:
+        return "frames-folder"
+    with open(path, "rb") as stream:
+        head = stream.read(_HEAD_BYTES)
+    if head.startswith(folder.PNG_MAGIC):
+        return "png"
+    if head.startswith(folder.TIFF_MAGICS):
+        return "tiff"
+    if head.startswith(npz.ZIP_MAGIC):
+        return "npz"
+    return oculus.sniff(head)
+
+
+def read_frames(path: str | Path, report: ReadReport | None = None) -> Iterator[SonarImage]:
+    """Every frame of the recording at `path` (a file or a folder), in recording order.
+
+    Files a reader does not own are counted in `report.skipped`; corrupt records it can step over are in
+    `report.problems`; input it cannot make sense of raises FormatError naming the file and field.
+    """
+    path = Path(path)
+    report = report if report is not None else ReadReport()
+    report.source = report.source or str(path)
+    if not path.exists():
+        raise FormatError(str(path), "path", "no such file or folder")
+    kind = sniff(path)
+    if kind == "frames-folder":
+        yield from folder.read_frames_folder(path if path.is_dir() else path.parent, report)
+    elif kind == "folder":
+        yield from _read_plain_folder(path, report)
+    else:
+        yield from _read_file(path, kind, report)
+
+
+def write_frames(frames: Iterable[SonarImage], path: str | Path) -> int:
+    """Write `frames` to `path`: an NPZ file when the name ends in .npz, else a frames folder. Returns the count.
+
+    Both are streamed (one frame in memory at a time) and read back losslessly by `read_frames`.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".npz":
+        return npz.write_npz(frames, path)
+    return folder.write_frames_folder(frames, path)
+
+
+def _read_plain_folder(path: Path, report: ReadReport) -> Iterator[SonarImage]:
+    """Each recognised file of the folder in natural name order; sidecars are read with their images."""
+    position = 0
+    for child in sorted(path.iterdir(), key=folder.natural_key):
+        if child.is_dir():
+            report.skip("subfolder")
+            continue
+        if child.suffix.lower() == ".json" or child.name.endswith(".tmp"):
+            continue  # sidecars (read with their image) and files still being written
+        kind = sniff(child)
+        if kind is None:
+            report.skip(f"not a frame file ({child.suffix or child.name})")
+            continue
+        for frame in _read_file(child, kind, report, position):
+            position += 1
+            yield frame
+
+
+def _read_file(path: Path, kind: str | None, report: ReadReport, position: int = 0) -> Iterator[SonarImage]:
+    if kind in ("png", "tiff"):
+        yield from folder.read_image_file(path, report, position)
+    elif kind == "npz":
+        yield from npz.read_npz(path, report)
+    elif kind in ("oculus_log", "oculus_raw"):
+        yield from oculus.read_oculus(path, report)
+    else:
+        raise FormatError(str(path), "magic", "unrecognised content (not a frames folder, PNG, TIFF, NPZ or Oculus)")
+

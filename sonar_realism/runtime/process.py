@@ -1,0 +1,49 @@
+"""Entry point of one node process (process mode): `python -m sonar_realism.runtime.process SPEC.json`.
+
+SIGINT and SIGTERM ask the node to stop: it finishes the frame at hand, sends end of stream and exits 0.
+The node also stops by itself when its launcher disappears (Wiring.exit_with_parent), so a killed
+launcher leaves no orphans behind.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from sonar_realism.config import from_dict
+from sonar_realism.runtime.graph import resolve_node_type
+from sonar_realism.runtime.wiring import Wiring
+
+
+def node_spec(name: str, type_name: str, params: dict[str, Any], wiring: Wiring) -> str:
+    """The JSON a launcher writes for one node process."""
+    return json.dumps({"name": name, "type": type_name, "params": params, "wiring": wiring.to_json()})
+
+
+def main(argv: list[str]) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    spec = json.loads(Path(argv[0]).read_text())
+    node_class = resolve_node_type(spec["type"])
+    params = from_dict(node_class.PARAMS, spec["params"], f"nodes.{spec['name']}.params")
+    node = node_class(spec["name"], params, Wiring.from_json(spec["wiring"]))
+
+    def stop(signum: int, _frame: object) -> None:
+        logging.getLogger(__name__).info("node %s: signal %d, stopping", spec["name"], signum)
+        node.request_stop()
+
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        node.run()
+    except Exception:
+        logging.getLogger(__name__).exception("node %s failed", spec["name"])
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,89 @@
+"""Recording a stream: every frame written losslessly as it arrives, plus a contact sheet a person can look at.
+
+Frames go to `sonar_realism.io.write_frames` (a frames folder, or NPZ when the path ends in .npz) through
+a writer thread, so disk time never stalls the node's socket loop and only `max_backlog` frames are held
+in memory. The contact sheet keeps an evenly spread subset of the stream without knowing its length:
+every k-th frame, with k doubling whenever the sheet is full.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sonar_realism.frames import SonarImage
+from sonar_realism.geometry import polar_to_fan
+from sonar_realism.io import write_frames
+from sonar_realism.plots import image_grid
+
+_END = object()
+
+
+class Recording:
+    def __init__(self, path: str | Path, contact_sheet: str | Path | None = None, sheet_tiles: int = 16,
+                 samples_per_tile: int = 4, fan_width_px: int = 320, max_backlog: int = 64) -> None:
+        self.path = Path(path)
+        self.contact_sheet = Path(contact_sheet) if contact_sheet else None
+        self.sheet_tiles = sheet_tiles
+        self.samples_per_tile = samples_per_tile
+        self.fan_width_px = fan_width_px
+        self.count = 0
+        self._kept: list[SonarImage] = []
+        self._stride = 1
+        self._backlog: queue.Queue[Any] = queue.Queue(maxsize=max_backlog)
+        self._error: BaseException | None = None
+        self._written = 0
+        self._closed = False
+        self._writer = threading.Thread(target=self._write, name=f"recorder:{self.path.name}", daemon=True)
+        self._writer.start()
+
+    def add(self, frame: SonarImage) -> None:
+        self._raise_writer_error()
+        # Received frames are views over ZeroMQ buffers: copy once so the writer owns what it holds.
+        frame = frame.replace(intensity=np.array(frame.intensity))
+        self._backlog.put(frame)
+        if self.count % self._stride == 0:
+            self._kept.append(frame)
+            if len(self._kept) > self.sheet_tiles:
+                self._kept = self._kept[::2]
+                self._stride *= 2
+        self.count += 1
+
+    def close(self) -> dict[str, Any]:
+        """Finish writing (waits for the backlog) and draw the contact sheet; returns a summary."""
+        if not self._closed:
+            self._closed = True
+            self._backlog.put(_END)
+            self._writer.join()
+            self._raise_writer_error()
+            if self.contact_sheet is not None and self._kept:
+                self.draw_contact_sheet(self.contact_sheet)
+        return {"frames": self._written, "path": str(self.path),
+                "contact_sheet": str(self.contact_sheet) if self.contact_sheet and self._kept else None}
+
+    def draw_contact_sheet(self, path: Path) -> Path:
+        tiles, labels = [], []
+        for frame in self._kept:
+            samples = [frame.sample(i) for i in range(min(frame.n_samples, self.samples_per_tile))] \
+                if frame.intensity.ndim == 3 else [frame]
+            fans = [polar_to_fan(s.replace(intensity=s.normalized()), self.fan_width_px) for s in samples]
+            tiles.append(np.hstack(fans))
+            labels.append(f"seq {frame.seq}" + (f"  {frame.n_samples} samples" if frame.n_samples > 1 else ""))
+        ncols = 2 if any(frame.n_samples > 1 for frame in self._kept) else 4  # multi-sample tiles are wide
+        return image_grid(tiles, path, ncols=ncols, labels=labels)
+
+    def _write(self) -> None:
+        try:
+            self._written = write_frames(iter(self._backlog.get, _END), self.path)
+        except BaseException as error:  # surfaced in the node's thread by add()/close()
+            self._error = error
+            while self._backlog.get() is not _END:  # keep add() from blocking on a dead writer
+                pass
+
+    def _raise_writer_error(self) -> None:
+        if self._error is not None:
+            raise self._error

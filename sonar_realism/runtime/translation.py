@@ -1,0 +1,69 @@
+"""The translator node's logic: a batch of simulated frames in, n realistic samples per frame out, with
+provenance (which input, which checkpoint, which seed) so that any output can be traced and reproduced."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+from sonar_realism.frames import SonarImage
+
+
+class SupportsTranslate(Protocol):
+    def translate(self, frames: Sequence[SonarImage], n: int, temperature: float = 1.0,
+                  seed: int | None = None) -> list[SonarImage]: ...
+
+
+def file_sha256(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class TranslationStage:
+    """Calls the translator on a batch and stamps every output with the input's seq/stamp/frame_id.
+
+    With a `seed`, a batch is seeded with `seed + seq of its first frame`, so a replayed stream gives the
+    same samples when it is batched the same way (batches depend on arrival timing under load).
+    """
+
+    def __init__(self, translator: SupportsTranslate, n: int, temperature: float = 1.0, seed: int | None = None,
+                 checkpoint_sha256: str = "", node: str = "translator") -> None:
+        self.translator = translator
+        self.n = n
+        self.temperature = temperature
+        self.seed = seed
+        self.checkpoint_sha256 = checkpoint_sha256
+        self.node = node
+        self.last_ms = 0.0
+
+    def __call__(self, frames: Sequence[SonarImage]) -> list[SonarImage]:
+        if not frames:
+            return []
+        batch_seed = None if self.seed is None else self.seed + frames[0].seq
+        start = time.perf_counter()
+        outputs = self.translator.translate(list(frames), self.n, self.temperature, batch_seed)
+        self.last_ms = (time.perf_counter() - start) * 1000.0
+        if len(outputs) != len(frames):
+            raise RuntimeError(f"translator returned {len(outputs)} frames for {len(frames)} inputs")
+        return [self._traced(source, out, batch_seed) for source, out in zip(frames, outputs, strict=True)]
+
+    def _traced(self, source: SonarImage, output: SonarImage, batch_seed: int | None) -> SonarImage:
+        carried = output.meta.get("provenance")
+        provenance: dict[str, Any] = {
+            **(carried if isinstance(carried, dict) else {}),  # what the translator itself recorded
+            "node": self.node,
+            "input_seq": source.seq,
+            "input_stamp_ns": source.stamp_ns,
+            "checkpoint_sha256": self.checkpoint_sha256,
+            "n": self.n,
+            "temperature": self.temperature,
+            "seed": batch_seed,
+        }
+        meta = {**source.meta, **output.meta, "provenance": provenance}
+        return output.replace(seq=source.seq, stamp_ns=source.stamp_ns, frame_id=source.frame_id, meta=meta)

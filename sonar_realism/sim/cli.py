@@ -1,0 +1,160 @@
+"""`sonar-realism simulate`: write simulated frames, per-frame object masks and a manifest to a folder.
+
+    sonar-realism simulate --effects none|all|speckle,tvg_noise,... --n N --out DIR [--scene NAME] [--seed S]
+                           [--param effect.name=value ...] [--beams B] [--ranges R] [--range-m M]
+
+DIR gets a frames folder (read back by `sonar_realism.io.read_frames`), `masks/NNNNNN.png` (uint8 object id per
+[range, beam] pixel, 0 = no object) and `manifest.json` (scene, seed, sensor, poses, objects, effects with
+their parameters, the command line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shlex
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from sonar_realism.config import to_dict
+from sonar_realism.errors import ConfigError
+from sonar_realism.frames import SonarImage
+from sonar_realism.io import write_frames
+from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
+from sonar_realism.sim.scene import SCENES, build_scene
+from sonar_realism.sim.sensor import SENSORS, SensorConfig
+from sonar_realism.sim.simulate import simulate
+
+STORAGE_DTYPES = ("float32", "uint16")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scene", default="default", help=f"scene name ({', '.join(SCENES)}); default: default")
+    parser.add_argument("--effects", default="none",
+                        help=f"none, all, or a comma list of: {', '.join(PIPELINE_ORDER)} (default: none)")
+    parser.add_argument("--n", type=int, default=24, help="number of frames (default 24)")
+    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the world and the per-ping draws (default 0)")
+    parser.add_argument("--param", action="append", default=[], metavar="EFFECT.NAME=VALUE",
+                        help="override an effect parameter, e.g. speckle.shape_nu=3 (repeatable)")
+    parser.add_argument("--sensor", default="m1200d_1200khz", choices=sorted(SENSORS),
+                        help="sensor preset (default m1200d_1200khz: 1.2 MHz, 130 x 20 deg)")
+    parser.add_argument("--beams", type=int, help="number of beams (default from the sensor: 256)")
+    parser.add_argument("--ranges", type=int, help="number of range bins (default from the sensor: 512)")
+    parser.add_argument("--range-m", type=float, dest="range_m", help="maximum range in metres (default 15)")
+    parser.add_argument("--dtype", default="float32", choices=STORAGE_DTYPES,
+                        help="storage of frames without gamma_quantization: float32 amplitude, or uint16 "
+                             "(amplitude * 65535, compact lossless PNG); 8-bit output comes from gamma_quantization")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def parse_params(items: list[str]) -> dict[str, dict[str, Any]]:
+    """["speckle.shape_nu=3", ...] -> {"speckle": {"shape_nu": 3}}."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        effect, dot, name = key.strip().partition(".")
+        if not sep or not dot or not effect or not name:
+            raise ConfigError(f"--param {item!r}: expected EFFECT.NAME=VALUE, e.g. speckle.shape_nu=3")
+        try:
+            value: Any = int(text) if text.strip().lstrip("+-").isdigit() else float(text)
+        except ValueError as exc:
+            raise ConfigError(f"--param {item!r}: {text!r} is not a number") from exc
+        out.setdefault(effect, {})[name] = value
+    return out
+
+
+def sensor_from_args(args: argparse.Namespace) -> SensorConfig:
+    changes = {k: v for k, v in (("n_beams", args.beams), ("n_ranges", args.ranges), ("max_range_m", args.range_m))
+               if v is not None}
+    sensor = dataclasses.replace(SENSORS[args.sensor], **changes)
+    sensor.validate()
+    return sensor
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.scene not in SCENES:
+        raise ConfigError(f"unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}")
+    if args.n < 1:
+        raise ConfigError(f"--n: expected at least 1 frame, got {args.n}")
+    sensor = sensor_from_args(args)
+    params = parse_params(args.param)
+    effects = resolve_effects(args.effects, params)  # validates names and parameters before any work
+    out = Path(args.out)
+    (out / "masks").mkdir(parents=True, exist_ok=True)
+
+    world = build_scene(args.scene, args.seed, sensor.max_range_m)
+    poses = world.trajectory(args.n)
+    progress = _Progress(args.n, enabled=not args.quiet)
+
+    def frames() -> Iterator[SonarImage]:
+        for index, (frame, mask) in enumerate(simulate(world, effects, args.n, args.seed, sensor)):
+            if not cv2.imwrite(str(out / "masks" / f"{index:06d}.png"), mask):
+                raise ConfigError(f"could not write {out / 'masks' / f'{index:06d}.png'}")
+            progress.step()
+            yield _stored(frame, args.dtype)
+
+    count = write_frames(frames(), out)
+    progress.close()
+    manifest = {
+        "scene": args.scene, "seed": args.seed, "n": count, "trajectory": world.trajectory_kind,
+        "sensor": to_dict(sensor), "effects": [{"name": e.name, "params": e.params()} for e in effects],
+        "poses": [p.as_dict() for p in poses],
+        "objects": [{"id": o.object_id, "kind": o.kind, "position": list(o.position), "material": o.material}
+                    for o in world.objects],
+        "masks": "masks/NNNNNN.png: uint8 object id per [range, beam] pixel (0 = none), ids as in 'objects'",
+        "storage": args.dtype if not any(e.name == "gamma_quantization" for e in effects) else "uint8",
+        "command": "sonar-realism simulate " + " ".join(shlex.quote(a) for a in _argv_of(args)),
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    print(f"wrote {count} frames, masks and manifest.json to {out}", file=sys.stderr)
+    return 0
+
+
+def _stored(frame: SonarImage, dtype: str) -> SonarImage:
+    if dtype == "uint16" and frame.intensity.dtype == np.float32:
+        counts = np.rint(np.clip(frame.intensity, 0.0, 1.0) * 65535.0).astype(np.uint16)
+        return frame.replace(intensity=counts, intensity_scale=65535.0)
+    return frame
+
+
+def _argv_of(args: argparse.Namespace) -> list[str]:
+    argv = ["--scene", args.scene, "--effects", args.effects, "--n", str(args.n), "--seed", str(args.seed),
+            "--out", str(args.out), "--sensor", args.sensor, "--dtype", args.dtype]
+    for flag, value in (("--beams", args.beams), ("--ranges", args.ranges), ("--range-m", args.range_m)):
+        if value is not None:
+            argv += [flag, str(value)]
+    for item in args.param:
+        argv += ["--param", item]
+    return argv
+
+
+class _Progress:
+    """A one-line progress bar on stderr (no dependency)."""
+
+    WIDTH = 30
+
+    def __init__(self, total: int, enabled: bool) -> None:
+        self.total, self.done, self.enabled = total, 0, enabled
+        self.start = time.perf_counter()
+
+    def step(self) -> None:
+        self.done += 1
+        if not self.enabled:
+            return
+        filled = int(self.WIDTH * self.done / max(self.total, 1))
+        rate = self.done / max(time.perf_counter() - self.start, 1e-9)
+        sys.stderr.write(f"\rsimulate [{'#' * filled}{'.' * (self.WIDTH - filled)}] {self.done}/{self.total} "
+                         f"{rate:5.1f} frames/s")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")

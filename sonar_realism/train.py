@@ -1,0 +1,459 @@
+"""Training the cDFCVAE in two cycles (docs/method.md), and the `sonar-realism train` command.
+
+Cycle 1: the real encoder and the decoder learn to reconstruct real frames (perceptual loss + β·KL).
+Cycle 2: starting from cycle 1's best weights, the simulated-frame encoder (a copy of the real one) learns
+to reconstruct simulated frames through the decoder, which stays frozen by default so it keeps the real
+texture. Both cycles stop early when the validation loss has not improved for `patience` epochs, and the
+best epoch's weights are kept.
+
+A run folder holds everything needed to resume after an interruption (`--resume`): `state.safetensors`
+(weights, best weights, Adam moments, torch RNG) and `state.json` (cycle, epoch, early-stopping records,
+loss history, numpy RNG), written atomically after every epoch. Finished runs also hold `model.safetensors`
++ `model.json` (the checkpoint `translate` loads), `cycle1.safetensors`, `early_stopping.json`,
+`config.json` and `loss_curves.png`.
+
+GPU: CUDA runs use bf16 autocast and channels_last; `torchrun --nproc_per_node=K -m sonar_realism.cli train`
+trains with DistributedDataParallel (each rank takes every K-th batch item; rank 0 writes the files).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from contextlib import nullcontext
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from sonar_realism.config import from_dict, to_dict
+from sonar_realism.datasets import GridFrames, Normalisation, batches, load_grid_frames, split_by_recording
+from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, PerceptualConfig, PerceptualLoss, save_checkpoint
+
+STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides a training run (CLI flags override the matching keys)."""
+
+    model: CDFCVAEConfig = field(default_factory=CDFCVAEConfig)
+    perceptual: PerceptualConfig = field(default_factory=PerceptualConfig)
+    learning_rate: float = 5e-4
+    adam_betas: tuple[float, float] = (0.5, 0.999)
+    batch_size: int = 16
+    epochs1: int = 80
+    epochs2: int = 60
+    patience: int = 10
+    min_improvement: float = 1e-3  # relative drop of the validation loss that counts as progress
+    normalisation: Normalisation = "frame_max"
+    real_val_recordings: tuple[str, ...] = ()
+    val_fraction: float = 0.2
+    flip_beams: bool = True
+    cycle2: Literal["second_encoder", "shared_encoder"] = "second_encoder"
+    cycle2_train_decoder: bool = False
+    max_frames: int | None = None
+    seed: int = 0
+    half_precision_checkpoint: bool = True
+
+    def validate(self) -> None:
+        self.model.validate()
+        self.perceptual.validate()
+        if self.learning_rate <= 0 or self.batch_size < 1 or self.patience < 1:
+            raise ConfigError("learning_rate, batch_size and patience must be positive")
+        if self.epochs1 < 0 or self.epochs2 < 0:
+            raise ConfigError("epochs1 and epochs2 must be >= 0")
+        if not 0.0 < self.val_fraction < 1.0:
+            raise ConfigError(f"val_fraction {self.val_fraction}: in (0, 1)")
+        if self.max_frames is not None and self.max_frames < 2:
+            raise ConfigError("max_frames must be >= 2 (one for training, one for validation)")
+
+
+# --- early stopping -------------------------------------------------------------------------------------------------
+
+@dataclass
+class EarlyStopping:
+    """The record of one cycle: best validation loss, when, and why training stopped."""
+
+    patience: int
+    min_improvement: float
+    best_loss: float = float("inf")
+    best_epoch: int = 0
+    epochs_done: int = 0
+    stale_epochs: int = 0
+    stopped_reason: str = ""
+
+    def update(self, val_loss: float) -> bool:
+        """Record one finished epoch; True when it is the best so far."""
+        self.epochs_done += 1
+        improved = val_loss < self.best_loss * (1.0 - self.min_improvement) or self.best_epoch == 0
+        if improved:
+            self.best_loss, self.best_epoch, self.stale_epochs = val_loss, self.epochs_done, 0
+        else:
+            self.stale_epochs += 1
+            if self.stale_epochs >= self.patience:
+                self.stopped_reason = f"no improvement for {self.patience} epochs"
+        return improved
+
+    @property
+    def stopped(self) -> bool:
+        return bool(self.stopped_reason)
+
+
+# --- one run -------------------------------------------------------------------------------------------------------
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("--device cuda: CUDA is not available on this machine")
+    if name not in ("cpu", "cuda"):
+        raise ConfigError(f"--device {name!r}: choose auto, cpu or cuda")
+    return torch.device(name)
+
+
+@dataclass
+class Data:
+    train: GridFrames
+    val: GridFrames
+    split: str
+
+
+def load_data(path: str | Path, cfg: TrainConfig, by_recording: bool) -> Data:
+    frames = load_grid_frames(path, cfg.model.grid, cfg.normalisation, cfg.max_frames)
+    if len(frames) < 2:
+        raise ConfigError(f"{path}: need at least 2 frames (training and validation), found {len(frames)}")
+    if by_recording:
+        train_idx, val_idx, how = split_by_recording(frames, cfg.real_val_recordings, cfg.val_fraction)
+    else:
+        # Simulated frames are independent renders, so a seeded random split is fair.
+        order = np.random.default_rng(cfg.seed).permutation(len(frames))
+        n_val = max(1, int(round(cfg.val_fraction * len(frames))))
+        val_idx, train_idx, how = np.sort(order[:n_val]), np.sort(order[n_val:]), "random (seeded)"
+    if len(train_idx) == 0 or len(val_idx) == 0:
+        raise ConfigError(f"{path}: the split left no training or no validation frames ({how})")
+    return Data(frames.subset(train_idx), frames.subset(val_idx), how)
+
+
+class Trainer:
+    """Runs (or resumes) the two cycles in a run folder."""
+
+    def __init__(self, cfg: TrainConfig, out: str | Path, device: torch.device, progress: bool = True) -> None:
+        cfg.validate()
+        self.cfg, self.out, self.device, self.progress = cfg, Path(out), device, progress
+        self.rank, self.world = int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+        if self.world > 1 and not torch.distributed.is_initialized():
+            torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        if device.type == "cuda" and self.world > 1:
+            self.device = device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+            torch.cuda.set_device(device)
+        torch.manual_seed(cfg.seed)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.model = CDFCVAE(cfg.model).to(device)
+        self.loss = PerceptualLoss(cfg.perceptual).to(device)
+        if device.type == "cuda":
+            self.model = self.model.to(memory_format=torch.channels_last)
+        self.cycle, self.history = 1, {"1": [], "2": []}
+        self.stopping = {c: EarlyStopping(cfg.patience, cfg.min_improvement) for c in ("1", "2")}
+        self.best: dict[str, torch.Tensor] = {}
+        self.optimizer = self._make_optimizer()
+
+    # Parameters each cycle trains.
+    def _trainable(self) -> list[nn.Parameter]:
+        m = self.model
+        if self.cycle == 1:
+            return [*m.encoder_real.parameters(), *m.decoder.parameters()]
+        encoder = m.encoder_sim if self.cfg.cycle2 == "second_encoder" else m.encoder_real
+        return [*encoder.parameters(), *(m.decoder.parameters() if self.cfg.cycle2_train_decoder else [])]
+
+    def _domain(self) -> Literal["real", "sim"]:
+        return "real" if self.cycle == 1 or self.cfg.cycle2 == "shared_encoder" else "sim"
+
+    def _make_optimizer(self) -> torch.optim.Adam:
+        self.model.requires_grad_(False)
+        params = self._trainable()
+        for p in params:
+            p.requires_grad_(True)
+        return torch.optim.Adam(params, lr=self.cfg.learning_rate, betas=self.cfg.adam_betas)
+
+    def _wrapped(self) -> nn.Module:
+        if self.world > 1:
+            return nn.parallel.DistributedDataParallel(self.model, find_unused_parameters=True)
+        return self.model
+
+    def _autocast(self) -> Any:
+        if self.device.type == "cuda":
+            return torch.autocast("cuda", dtype=torch.bfloat16)
+        return nullcontext()
+
+    def _to_device(self, batch: torch.Tensor) -> torch.Tensor:
+        batch = batch.to(self.device, non_blocking=True)
+        return batch.contiguous(memory_format=torch.channels_last) if self.device.type == "cuda" else batch
+
+    # --- epochs
+    def train_epoch(self, data: GridFrames, net: nn.Module, label: str) -> dict[str, float]:
+        self.model.train()
+        totals = np.zeros(3)
+        n_batches = (len(data) + self.cfg.batch_size - 1) // self.cfg.batch_size
+        started = time.monotonic()
+        for i, batch in enumerate(batches(data.images, self.cfg.batch_size, self.rng, self.cfg.flip_beams)):
+            batch = self._to_device(batch[self.rank::self.world] if self.world > 1 else batch)
+            with self._autocast():
+                x_hat, mu, logvar = net(batch, self._domain())
+                total, perceptual, kl = self.loss(x_hat, batch, mu, logvar)
+            self.optimizer.zero_grad(set_to_none=True)
+            total.backward()
+            self.optimizer.step()
+            totals += [total.item(), perceptual.item(), kl.item()]
+            if self.progress and self.rank == 0:
+                _progress(label, i + 1, n_batches, totals[0] / (i + 1), time.monotonic() - started)
+        mean = totals / max(n_batches, 1)
+        return {"train_loss": mean[0], "train_perceptual": mean[1], "train_kl": mean[2]}
+
+    @torch.no_grad()
+    def validate(self, data: GridFrames) -> dict[str, float]:
+        """Loss of the posterior mean (z = mu, dropout off): deterministic, so early stopping is too."""
+        self.model.eval()
+        encoder = self.model.encoder(self._domain())
+        totals, count = np.zeros(3), 0
+        for batch in batches(data.images, self.cfg.batch_size, None):
+            batch = self._to_device(batch)
+            with self._autocast():
+                mu, logvar, skips = encoder(batch)
+                total, perceptual, kl = self.loss(self.model.decoder(mu, skips), batch, mu, logvar)
+            totals += len(batch) * np.array([float(total), float(perceptual), float(kl)])
+            count += len(batch)
+        mean = totals / count
+        return {"val_loss": mean[0], "val_perceptual": mean[1], "val_kl": mean[2]}
+
+    def run_cycle(self, data: Data, max_epochs: int, budget: list[int]) -> bool:
+        """Train the current cycle until its limit, early stop, or the epoch budget of this call runs out.
+        Returns False when interrupted by the budget."""
+        key = str(self.cycle)
+        record = self.stopping[key]
+        net = self._wrapped()
+        while record.epochs_done < max_epochs and not record.stopped:
+            if budget[0] == 0:
+                return False
+            label = f"cycle {key} epoch {record.epochs_done + 1}/{max_epochs}"
+            row = {"epoch": record.epochs_done + 1, **self.train_epoch(data.train, net, label),
+                   **self.validate(data.val)}
+            if record.update(row["val_loss"]):
+                self.best = {k: v.detach().clone() for k, v in self.model.state_dict().items()}
+            self.history[key].append(row)
+            budget[0] -= 1
+            if self.rank == 0:
+                if self.progress:
+                    print(f"\r{label}: train {row['train_loss']:.4g} val {row['val_loss']:.4g} "
+                          f"(kl {row['val_kl']:.3g}){' *' if record.best_epoch == record.epochs_done else ''}",
+                          file=sys.stderr)
+                self.save_state()
+        if not record.stopped:
+            record.stopped_reason = f"reached the epoch limit ({max_epochs})"
+        return True
+
+    def finish_cycle1(self) -> None:
+        """Keep cycle 1's best weights and start cycle 2 from them."""
+        if self.best:
+            self.model.load_state_dict(self.best)
+        if self.rank == 0:
+            save_checkpoint(self.model, self.out / "cycle1.safetensors", self._checkpoint_info(),
+                            self.cfg.half_precision_checkpoint)
+        self.model.encoder_sim.load_state_dict(self.model.encoder_real.state_dict())
+        self.cycle, self.best = 2, {}
+        self.optimizer = self._make_optimizer()
+        if self.rank == 0:
+            self.save_state()
+
+    # --- persistence
+    def _checkpoint_info(self) -> dict[str, Any]:
+        return {"normalisation": self.cfg.normalisation, "trained_cycles": self.cycle,
+                "early_stopping": {k: vars(v) for k, v in self.stopping.items()},
+                "perceptual": to_dict(self.cfg.perceptual)}
+
+    def save_state(self) -> None:
+        tensors = {f"model.{k}": v for k, v in self.model.state_dict().items()}
+        tensors.update({f"best.{k}": v for k, v in self.best.items()})
+        param_index = {id(p): i for i, p in enumerate(self._trainable())}
+        for param, slot in self.optimizer.state.items():
+            for name, value in slot.items():
+                tensors[f"optim.{param_index[id(param)]}.{name}"] = torch.as_tensor(value)
+        tensors["rng.torch"] = torch.get_rng_state()
+        tensors = {k: v.detach().cpu().contiguous() for k, v in tensors.items()}
+        info = {"format": STATE_FORMAT, "config": to_dict(self.cfg), "cycle": self.cycle, "history": self.history,
+                "early_stopping": {k: vars(v) for k, v in self.stopping.items()},
+                "rng_numpy": self.rng.bit_generator.state}
+        _atomic(self.out / "state.safetensors", lambda p: save_file(tensors, str(p)))
+        _atomic(self.out / "state.json", lambda p: p.write_text(json.dumps(info, indent=1, default=_jsonable)))
+
+    def load_state(self) -> None:
+        info_path, tensor_path = self.out / "state.json", self.out / "state.safetensors"
+        try:
+            info = json.loads(info_path.read_text())
+            tensors = load_file(str(tensor_path))
+        except (OSError, ValueError, SafetensorError) as exc:
+            raise FormatError(str(self.out), "state", f"cannot resume: {exc}") from exc
+        if info.get("format") != STATE_FORMAT:
+            raise FormatError(str(info_path), "format", f"expected {STATE_FORMAT!r}")
+        saved_cfg = from_dict(TrainConfig, info["config"], str(info_path))
+        if to_dict(replace(saved_cfg, epochs1=0, epochs2=0)) != to_dict(replace(self.cfg, epochs1=0, epochs2=0)):
+            raise ConfigError(f"{info_path}: the run was started with a different configuration; resume it with "
+                              "the same options (only --epochs1/--epochs2 may change)")
+        self.cycle = int(info["cycle"])
+        self.optimizer = self._make_optimizer()
+        self.model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+        self.best = {k[5:]: v for k, v in tensors.items() if k.startswith("best.")}
+        params = self._trainable()
+        for key, value in tensors.items():
+            if key.startswith("optim."):
+                _, index, name = key.split(".", 2)
+                self.optimizer.state[params[int(index)]][name] = value.to(self.device) if name != "step" else value
+        torch.set_rng_state(tensors["rng.torch"])
+        self.rng.bit_generator.state = info["rng_numpy"]
+        self.history = info["history"]
+        for key, record in info["early_stopping"].items():
+            self.stopping[key] = EarlyStopping(**record)
+
+    def write_outputs(self, real: Data, sim: Data | None) -> dict[str, Any]:
+        if self.best:
+            self.model.load_state_dict(self.best)
+        if self.cfg.cycle2 == "shared_encoder":
+            # Translation always encodes with encoder_sim; here the one shared encoder is it.
+            self.model.encoder_sim.load_state_dict(self.model.encoder_real.state_dict())
+        extra = self._checkpoint_info()
+        save_checkpoint(self.model, self.out / "model.safetensors", extra, self.cfg.half_precision_checkpoint)
+        record = {"cycles": extra["early_stopping"], "real_split": real.split,
+                  "sim_split": sim.split if sim else None, "n_real": [len(real.train), len(real.val)],
+                  "n_sim": [len(sim.train), len(sim.val)] if sim else None}
+        (self.out / "early_stopping.json").write_text(json.dumps(record, indent=2, default=_jsonable) + "\n")
+        from sonar_realism.plots import line_plot
+
+        series = {}
+        offset = 0
+        for key in ("1", "2"):
+            rows = self.history[key]
+            x = [offset + r["epoch"] for r in rows]
+            series[f"cycle {key} train"] = (x, [r["train_loss"] for r in rows])
+            series[f"cycle {key} val"] = (x, [r["val_loss"] for r in rows])
+            offset += len(rows)
+        line_plot({k: v for k, v in series.items() if v[0]}, self.out / "loss_curves.png",
+                  title="cDFCVAE loss (perceptual + beta*KL)", xlabel="epoch (cycle 1, then cycle 2)",
+                  ylabel="loss", logy=True)
+        return record
+
+
+def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,
+        device: str = "auto", resume: bool = False, max_epochs_now: int | None = None,
+        progress: bool = True) -> dict[str, Any]:
+    """Train (or resume) a run in `out`. `max_epochs_now` ends this call after that many epochs (a
+    time-sliced or pre-emptible job); `resume=True` continues from the state left behind.
+    Returns {"finished": bool, ...early-stopping record when finished}."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    trainer = Trainer(cfg, out, pick_device(device), progress)
+    if resume:
+        if not (out / "state.json").is_file():
+            raise ConfigError(f"--resume: {out} holds no training state (state.json)")
+        trainer.load_state()
+    (out / "config.json").write_text(json.dumps(to_dict(cfg), indent=2) + "\n")
+    real = load_data(real_dir, cfg, by_recording=True)
+    sim = load_data(sim_dir, cfg, by_recording=False) if sim_dir else None
+    budget = [max_epochs_now if max_epochs_now is not None else -1]
+    if trainer.cycle == 1:
+        if not trainer.run_cycle(real, cfg.epochs1, budget):
+            return {"finished": False}
+        trainer.finish_cycle1()
+    if sim is not None and not trainer.run_cycle(sim, cfg.epochs2, budget):
+        return {"finished": False}
+    return {"finished": True, **(trainer.write_outputs(real, sim) if trainer.rank == 0 else {})}
+
+
+# --- helpers -------------------------------------------------------------------------------------------------------
+
+def _atomic(path: Path, write: Any) -> None:
+    partial = path.with_name(path.name + ".tmp")
+    write(partial)
+    os.replace(partial, path)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.integer | np.floating):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def _progress(label: str, done: int, total: int, loss: float, elapsed: float) -> None:
+    width = 24
+    filled = int(width * done / max(total, 1))
+    eta = elapsed / done * (total - done)
+    print(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} loss {loss:.4g} "
+          f"eta {eta:.0f}s", end="", file=sys.stderr, flush=True)
+
+
+# --- CLI -----------------------------------------------------------------------------------------------------------
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """"128x128" -> (n_ranges, n_beams)."""
+    try:
+        rows, cols = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"--grid: expected RANGESxBEAMS like 128x128, got {text!r}") from exc
+    return rows, cols
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", choices=("cdfcvae", "cyclegan"), default="cdfcvae")
+    parser.add_argument("--real", required=True, help="real recordings (any format read_frames reads)")
+    parser.add_argument("--sim", help="simulated frames (cdfcvae: for cycle 2; without it only cycle 1 runs)")
+    parser.add_argument("--out", required=True, help="run folder (checkpoint, state, curves)")
+    parser.add_argument("--epochs1", type=int, help="cdfcvae: cycle-1 epoch limit (default 80)")
+    parser.add_argument("--epochs2", type=int, help="cdfcvae: cycle-2 epoch limit (default 60)")
+    parser.add_argument("--epochs", type=int, default=200, help="cyclegan: epochs (default 200)")
+    parser.add_argument("--batch-size", type=int, help="default: 16 (cdfcvae), 1 (cyclegan)")
+    parser.add_argument("--grid", help="model grid RANGESxBEAMS (default 128x128)")
+    parser.add_argument("--max-frames", type=int, help="use at most this many frames of each set")
+    parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    parser.add_argument("--seed", type=int, help="default 0")
+    parser.add_argument("--resume", action="store_true", help="continue the run left in --out")
+    parser.add_argument("--config", help="JSON file of TrainConfig keys (model, perceptual, ...); unknown keys "
+                                         "are rejected; flags given on the command line win")
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    data: dict[str, Any] = {}
+    if args.config:
+        try:
+            data = json.loads(Path(args.config).read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"--config {args.config}: {exc}") from exc
+    flags = {"epochs1": args.epochs1, "epochs2": args.epochs2, "batch_size": args.batch_size,
+             "max_frames": args.max_frames, "seed": args.seed}
+    data.update({k: v for k, v in flags.items() if v is not None})
+    if args.grid:
+        data["model"] = {**data.get("model", {}), "grid": list(parse_grid(args.grid))}
+    return from_dict(TrainConfig, data, str(args.config or "config"))
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.model == "cyclegan":
+        from sonar_realism.train_cyclegan import train
+
+        args.batch_size = args.batch_size or 1
+        args.grid = args.grid or "128x128"
+        args.seed = args.seed if args.seed is not None else 0
+        return train(args)
+    cfg = config_from_args(args)
+    started = time.monotonic()
+    result = fit(cfg, args.real, args.sim, args.out, device=args.device, resume=args.resume)
+    print(f"trained in {time.monotonic() - started:.0f} s; checkpoint {Path(args.out) / 'model.safetensors'}",
+          file=sys.stderr)
+    return 0 if result["finished"] else 1

@@ -1,0 +1,154 @@
+"""Training loop of the CycleGAN baseline: `sonar-realism train --model cyclegan` lands here.
+
+Unpaired: each step draws one batch of simulated and one batch of real grids. Adam (lr 2e-4, beta1 0.5),
+constant lr then linear decay to 0 over the last `decay_fraction` of the epochs. The checkpoint is written
+after every epoch (weights of the four networks, optimiser state, JSON with config, grid, epoch and loss
+history), so `--resume` continues where a run stopped. The image pools and random streams are not saved:
+a resumed run refills its pools, which changes nothing that matters after a few dozen steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+
+from sonar_realism.config import from_dict, to_dict
+from sonar_realism.datasets import load_grid_frames
+from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.models.cyclegan import (
+    CHECKPOINT_KIND,
+    CycleGAN,
+    CycleGANConfig,
+    ImagePool,
+    pick_device,
+    resolve_checkpoint,
+)
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """"128x128" -> (128, 128) (rows = range bins, columns = beams); sides must be multiples of 4."""
+    try:
+        rows, cols = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"grid: expected ROWSxCOLS like 128x128, got {text!r}") from exc
+    if rows < 16 or cols < 16 or rows % 4 or cols % 4:
+        raise ConfigError(f"grid: sides must be multiples of 4 and >= 16, got {text!r}")
+    return rows, cols
+
+
+def _optimizer_state(optimizer: torch.optim.Optimizer, prefix: str) -> dict[str, torch.Tensor]:
+    tensors = {}
+    for index, state in optimizer.state_dict()["state"].items():
+        for name, value in state.items():
+            tensors[f"{prefix}.{index}.{name}"] = torch.as_tensor(value).clone()
+    return tensors
+
+
+def _load_optimizer_state(optimizer: torch.optim.Optimizer, tensors: dict[str, torch.Tensor], prefix: str) -> None:
+    state: dict[int, dict[str, torch.Tensor]] = {}
+    for key, value in tensors.items():
+        head, index, name = key.rsplit(".", 2)
+        if head == prefix:
+            state.setdefault(int(index), {})[name] = value
+    full = optimizer.state_dict()
+    full["state"] = state
+    optimizer.load_state_dict(full)
+
+
+def save_checkpoint(out: Path, model: CycleGAN, opt_g: torch.optim.Optimizer, opt_d: torch.optim.Optimizer,
+                    meta: dict[str, Any]) -> Path:
+    weights_path, meta_path = resolve_checkpoint(out)
+    weights_path.parent.mkdir(parents=True, exist_ok=True)
+    save_file({k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}, str(weights_path))
+    state = {**_optimizer_state(opt_g, "opt_g"), **_optimizer_state(opt_d, "opt_d")}
+    save_file({k: v.cpu().contiguous() for k, v in state.items()}, str(weights_path.with_suffix(".optim.safetensors")))
+    meta_path.write_text(json.dumps(meta, indent=2))
+    return weights_path
+
+
+def lr_factor(epoch: int, epochs: int, decay_fraction: float) -> float:
+    """1 for the constant part, then linear down to 0 at the end of the last epoch."""
+    decay_epochs = round(epochs * decay_fraction)
+    start = epochs - decay_epochs
+    return 1.0 if epoch < start else 1.0 - (epoch - start + 1) / (decay_epochs + 1)
+
+
+def train(args: argparse.Namespace) -> int:
+    """Train (or resume) a CycleGAN sim -> real. See the `train` subcommand for the arguments."""
+    if not args.sim:
+        raise ConfigError("--sim: the CycleGAN needs simulated frames (it learns sim -> real)")
+    grid = parse_grid(args.grid)
+    overrides = json.loads(Path(args.config).read_text()) if args.config else {}
+    config = from_dict(CycleGANConfig, overrides, where=str(args.config or "config"))
+    device = pick_device(args.device)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+
+    weights_path, meta_path = resolve_checkpoint(args.out)
+    resuming = bool(args.resume) and weights_path.exists()
+    meta: dict[str, Any] = {}
+    if resuming:
+        meta = json.loads(meta_path.read_text())
+        if meta.get("model") != CHECKPOINT_KIND:
+            raise FormatError(str(meta_path), "model", f"not a {CHECKPOINT_KIND} checkpoint")
+        config = from_dict(CycleGANConfig, meta["config"], where=f"{meta_path}: config")
+        grid = (int(meta["grid"][0]), int(meta["grid"][1]))
+    # Same preprocessing as the cDFCVAE (model grid, per-frame max rescale), mapped to tanh's [-1, 1].
+    sim = torch.from_numpy(load_grid_frames(args.sim, grid, "frame_max", args.max_frames).images * 2 - 1).unsqueeze(1)
+    real = torch.from_numpy(load_grid_frames(args.real, grid, "frame_max", args.max_frames).images * 2 - 1).unsqueeze(1)
+    model = CycleGAN(config).to(device)
+    generators = list(model.g_ab.parameters()) + list(model.g_ba.parameters())
+    discriminators = list(model.d_a.parameters()) + list(model.d_b.parameters())
+    opt_g = torch.optim.Adam(generators, lr=config.lr, betas=(config.beta1, 0.999))
+    opt_d = torch.optim.Adam(discriminators, lr=config.lr, betas=(config.beta1, 0.999))
+    start_epoch, history = 0, []
+    if resuming:
+        model.load_state_dict(load_file(str(weights_path)))
+        optim = load_file(str(weights_path.with_suffix(".optim.safetensors")))
+        _load_optimizer_state(opt_g, optim, "opt_g")
+        _load_optimizer_state(opt_d, optim, "opt_d")
+        start_epoch, history = int(meta["epoch"]), list(meta.get("history", []))
+        print(f"resuming {weights_path} at epoch {start_epoch}", file=sys.stderr)
+
+    pool_a, pool_b = ImagePool(config.pool_size, args.seed), ImagePool(config.pool_size, args.seed + 1)
+    steps = max(len(sim), len(real)) // args.batch_size or 1
+    for epoch in range(start_epoch, args.epochs):
+        factor = lr_factor(epoch, args.epochs, config.decay_fraction)
+        for opt in (opt_g, opt_d):
+            for group in opt.param_groups:
+                group["lr"] = config.lr * factor
+        sums: dict[str, float] = {}
+        began = time.monotonic()
+        model.train()
+        for step in range(steps):
+            real_a = sim[rng.integers(0, len(sim), args.batch_size)].to(device)
+            real_b = real[rng.integers(0, len(real), args.batch_size)].to(device)
+            loss_g, terms, (fake_a, fake_b) = model.generator_loss(real_a, real_b)
+            opt_g.zero_grad()
+            loss_g.backward()
+            opt_g.step()
+            loss_d = model.discriminator_loss(real_a, real_b, pool_a.query(fake_a), pool_b.query(fake_b))
+            opt_d.zero_grad()
+            loss_d.backward()
+            opt_d.step()
+            for key, value in {**terms, "g_total": loss_g.item(), "d_total": loss_d.item()}.items():
+                sums[key] = sums.get(key, 0.0) + value
+            print(f"\repoch {epoch + 1}/{args.epochs} step {step + 1}/{steps} g {loss_g.item():.3f} "
+                  f"d {loss_d.item():.3f}", end="", file=sys.stderr, flush=True)
+        history.append({"epoch": epoch + 1, "lr": config.lr * factor, "seconds": time.monotonic() - began,
+                        **{k: v / steps for k, v in sums.items()}})
+        print(file=sys.stderr)
+        save_checkpoint(args.out, model, opt_g, opt_d, {
+            "model": CHECKPOINT_KIND, "config": to_dict(config), "grid": list(grid), "epoch": epoch + 1,
+            "epochs": args.epochs, "batch_size": args.batch_size, "seed": args.seed, "history": history,
+            "real": str(args.real), "sim": str(args.sim), "n_real": len(real), "n_sim": len(sim)})
+    print(f"checkpoint: {weights_path}", file=sys.stderr)
+    return 0

@@ -1,0 +1,177 @@
+"""Simulated frames -> n realistic samples each, with a trained cDFCVAE; and `sonar-realism translate`.
+
+Each frame is resampled to the model grid, normalised as in training, encoded once by the simulation
+encoder; n latents z = mu + temperature·sigma·eps are decoded as one batch, and the samples are resampled
+back onto the input's own ranges and bearings. The result is one SonarImage per input with float32
+intensity [n, n_ranges, n_beams] in [0, 1] and the translation's provenance in `meta["provenance"]`.
+
+Noise is drawn from one generator seeded with `seed`, frame after frame, so a seeded call is reproducible
+and a frame's samples do not depend on the frames translated after it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import secrets
+import sys
+from collections.abc import Iterator, Sequence
+from contextlib import nullcontext
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sonar_realism.datasets import to_model_grid
+from sonar_realism.errors import ConfigError, FrameError
+from sonar_realism.frames import SonarImage
+from sonar_realism.geometry import resample_like, resample_to_grid
+from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
+
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "assets" / "cdfcvae_default.safetensors"
+# Frames encoded per forward pass: bounds memory at n samples each (decodes = chunk × n).
+_FRAMES_PER_PASS = 16
+
+
+class Translator:
+    """A loaded cDFCVAE that turns simulated frames into realistic samples."""
+
+    def __init__(self, model: CDFCVAE, info: dict[str, Any], checkpoint: Path, device: torch.device) -> None:
+        self.model = model.to(device).eval()
+        self.info = info
+        self.device = device
+        self.checkpoint = checkpoint
+        self.checkpoint_sha256 = file_sha256(checkpoint)[:16]
+        self.normalisation = info.get("normalisation", "frame_max")
+        if device.type == "cuda":
+            self.model = self.model.to(memory_format=torch.channels_last)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path = DEFAULT_CHECKPOINT, device: str = "auto") -> Translator:
+        if device == "auto":
+            chosen = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        elif device in ("cpu", "cuda"):
+            if device == "cuda" and not torch.cuda.is_available():
+                raise ConfigError("device cuda: CUDA is not available on this machine")
+            chosen = torch.device(device)
+        else:
+            raise ConfigError(f"device {device!r}: choose auto, cpu or cuda")
+        model, info = load_checkpoint(path)
+        return cls(model, info, Path(path), chosen)
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        return tuple(self.model.cfg.grid)  # type: ignore[return-value]
+
+    def translate(self, frames: Sequence[SonarImage], n: int, temperature: float = 1.0,
+                  seed: int | None = None) -> list[SonarImage]:
+        """n samples of each frame, each output on its input's geometry: float32 [n, R, B] in [0, 1]."""
+        if n < 1:
+            raise ConfigError(f"n: need at least one sample, got {n}")
+        if not np.isfinite(temperature) or temperature < 0:
+            raise ConfigError(f"temperature: expected a finite number >= 0, got {temperature}")
+        seed = secrets.randbits(63) if seed is None else int(seed)
+        generator = torch.Generator(device=self.device).manual_seed(seed)
+        provenance = {"model": "cdfcvae", "checkpoint": self.checkpoint.name,
+                      "checkpoint_sha256": self.checkpoint_sha256, "temperature": float(temperature),
+                      "seed": seed, "n_samples": n}
+        out: list[SonarImage] = []
+        for start in range(0, len(frames), _FRAMES_PER_PASS):
+            out.extend(self._translate_chunk(frames[start:start + _FRAMES_PER_PASS], n, temperature, generator,
+                                             provenance))
+        return out
+
+    def _translate_chunk(self, frames: Sequence[SonarImage], n: int, temperature: float,
+                         generator: torch.Generator, provenance: dict[str, Any]) -> list[SonarImage]:
+        for frame in frames:
+            if frame.intensity.ndim != 2:
+                raise FrameError(f"translate: frame seq {frame.seq} already has {frame.n_samples} samples; "
+                                 "pass single [ranges, beams] frames")
+        batch = np.stack([to_model_grid(frame, self.grid, self.normalisation) for frame in frames])
+        x = torch.from_numpy(batch).unsqueeze(1).to(self.device)
+        if self.device.type == "cuda":
+            x = x.contiguous(memory_format=torch.channels_last)
+        with torch.inference_mode(), (torch.autocast("cuda", dtype=torch.bfloat16) if self.device.type == "cuda"
+                                      else nullcontext()):
+            samples = self.model.sample(x, n, temperature, generator)
+        samples_np = samples.float().clamp(0.0, 1.0).cpu().numpy()
+        return [self._back_to_input_geometry(frame, samples_np[i], provenance) for i, frame in enumerate(frames)]
+
+    def _back_to_input_geometry(self, frame: SonarImage, samples: np.ndarray, provenance: dict[str, Any]
+                                ) -> SonarImage:
+        meta = dict(frame.meta)
+        meta["provenance"] = {**meta.get("provenance", {}), "translator": provenance} \
+            if isinstance(meta.get("provenance"), dict) else {"translator": provenance}
+        on_grid = resample_to_grid(frame, *self.grid) if (frame.n_ranges, frame.n_beams) != self.grid else frame
+        result = on_grid.replace(intensity=samples.astype(np.float32), intensity_scale=1.0, meta=meta)
+        if not result.same_geometry(frame):
+            result = resample_like(result, frame)
+        intensity = np.clip(result.intensity.astype(np.float32, copy=False), 0.0, 1.0)
+        return result.replace(intensity=intensity, intensity_scale=1.0)
+
+
+def load_translator(path: str | Path, device: str = "auto") -> Any:
+    """The translator a checkpoint asks for: the cDFCVAE, or the CycleGAN baseline (same `.translate`)."""
+    from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
+
+    if is_cyclegan_checkpoint(path):
+        return CycleGANTranslator.from_checkpoint(path, device)
+    return Translator.from_checkpoint(path, device)
+
+
+# --- CLI -----------------------------------------------------------------------------------------------------------
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", default=str(DEFAULT_CHECKPOINT),
+                        help="cDFCVAE (or CycleGAN baseline) checkpoint, .safetensors with its .json; "
+                             "default: the shipped cDFCVAE")
+    parser.add_argument("--in", dest="inp", required=True, help="simulated frames (any format read_frames reads)")
+    parser.add_argument("--out", required=True, help="output frames folder (+ contact_sheet.png)")
+    parser.add_argument("--n", type=int, default=8, help="samples per frame (default 8)")
+    parser.add_argument("--temperature", type=float, default=1.0, help="latent noise scale s (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    parser.add_argument("--max-frames", type=int, help="translate at most this many frames")
+
+
+def _chunks(frames: Iterator[SonarImage], size: int, limit: int | None) -> Iterator[list[SonarImage]]:
+    chunk: list[SonarImage] = []
+    for count, frame in enumerate(frames):
+        if limit is not None and count >= limit:
+            break
+        chunk.append(frame)
+        if len(chunk) == size:
+            yield chunk
+            chunk = []
+    if chunk:
+        yield chunk
+
+
+def run(args: argparse.Namespace) -> int:
+    from sonar_realism.io import read_frames, write_frames
+    from sonar_realism.plots import image_grid
+
+    translator = load_translator(args.checkpoint, args.device)
+    sheet: list[np.ndarray] = []
+    columns = 1 + min(args.n, 7)
+
+    def translated() -> Iterator[SonarImage]:
+        for index, chunk in enumerate(_chunks(read_frames(args.inp), _FRAMES_PER_PASS, args.max_frames)):
+            # Chunk k draws its noise from (seed, k): reproducible end to end and independent across chunks.
+            chunk_seed = int(np.random.SeedSequence([args.seed, index]).generate_state(1, np.uint64)[0] >> 1)
+            outputs = translator.translate(chunk, args.n, args.temperature, seed=chunk_seed)
+            for frame, output in zip(chunk, outputs, strict=True):
+                if len(sheet) < 4 * columns:
+                    sheet.append(frame.normalized())
+                    sheet.extend(output.intensity[: columns - 1])
+                yield output
+            print(f"\rtranslated {index * _FRAMES_PER_PASS + len(chunk)} frames", end="", file=sys.stderr)
+
+    count = write_frames(translated(), args.out)
+    print(file=sys.stderr)
+    if not count:
+        raise ConfigError(f"--in {args.inp}: no frames to translate")
+    labels = [("input" if i % columns == 0 else f"sample {i % columns}") for i in range(len(sheet))]
+    image_grid(sheet, Path(args.out) / "contact_sheet.png", ncols=columns, labels=labels)
+    print(f"{count} frames x {args.n} samples -> {args.out}", file=sys.stderr)
+    return 0

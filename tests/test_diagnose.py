@@ -1,0 +1,113 @@
+"""Gap measures, where-maps, the diagnosis on a planted effect, the CLI end to end, and bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sonar_realism.cli import main
+from sonar_realism.diagnose.diagnosis import DiagnoseConfig, diagnose, split_indices
+from sonar_realism.diagnose.gap import FeatureScale, bootstrap_interval, classifier_auc, family_gaps, gap
+from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_cells, where_features
+from sonar_realism.diagnose.which import SearchConfig
+from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.statistics import frame_statistics
+from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
+from sonar_realism.io import write_frames
+from sonar_realism.sim import SensorConfig, simulate
+from sonar_realism.sim.effects import apply_effects, make_effect
+
+SENSOR = SensorConfig(n_ranges=128, n_beams=128, max_range_m=10.0, elevation_rays=16)
+FAST = DiagnoseConfig(fit_frames=4, eval_frames=8, bootstrap=30, search=SearchConfig(points=4, rounds=1))
+
+
+def sim_frames(n: int, seed: int) -> list[SonarImage]:
+    return [frame for frame, _ in simulate(n=n, seed=seed, sensor=SENSOR)]
+
+
+def speckled(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.clip(rng.rayleigh(0.2, (n, 128, 128)), 0, 1).astype(np.float32)
+
+
+def test_gap_is_near_zero_for_one_distribution_and_large_for_two():
+    a, b = frame_statistics(speckled(12, 0)), frame_statistics(speckled(12, 1))
+    c = frame_statistics(np.sqrt(speckled(12, 2)))
+    scale = FeatureScale.pooled(a, c)
+    same, different = gap(a, b, scale), gap(a, c, scale)
+    assert abs(same) < 0.1
+    assert different > 1.0
+    lo, hi = bootstrap_interval(a, c, scale, n_boot=50)
+    assert lo < different < hi
+    assert set(family_gaps(a, c, scale)) == set(a)
+    assert classifier_auc(a, c)[0] > 0.95
+    assert classifier_auc(a, b)[0] < 0.85
+
+
+def test_where_map_points_at_the_cell_that_differs():
+    real = speckled(8, 3)
+    sim = speckled(8, 4)
+    real[:, 32:48, 96:112] *= 2.5  # something only the real frames have, in range cell 2, bearing cell 6 (of 8)
+    real = np.clip(real, 0, 1)
+    config = WhereConfig()
+    wa, wb = where_features(sim, config), where_features(real, config)
+    sa, sb = frame_statistics(sim), frame_statistics(real)
+    maps = gap_maps(wa, wb, FeatureScale.pooled(wa, wb), sa, sb, FeatureScale.pooled(sa, sb), config)
+    hottest = hot_cells(maps.cells, uniform_ranges(128, 10.0), uniform_azimuths(128, 2.0), top=1)[0]
+    assert (hottest["range_cell"], hottest["bearing_cell"]) == (2, 6)
+    assert 2.5 <= hottest["range_m"][0] <= hottest["range_m"][1] <= 3.8
+
+
+def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():
+    sim = sim_frames(10, seed=1)
+    noise = make_effect("tvg_noise", noise_amplitude=0.2)
+    rng = np.random.default_rng(0)
+    real = [apply_effects(f, [noise], rng) for f in sim_frames(10, seed=2)]
+    config = DiagnoseConfig(**{**FAST.__dict__, "effects": ("tvg_noise", "gamma_quantization", "ring_down")})
+    result = diagnose(sim, real, config).summary
+    assert result["ranked_effects"][0]["name"] == "tvg_noise"
+    assert result["selected"][0] == "tvg_noise"
+    assert result["gap_after_selected"] < 0.3 * result["gap_before"]
+    assert result["ranked_effects"][0]["params"]["noise_amplitude"] == pytest.approx(0.2, abs=0.12)
+
+
+def test_cli_writes_diagnosis_json_and_report(tmp_path):
+    write_frames(sim_frames(8, seed=3), tmp_path / "sim")
+    rng = np.random.default_rng(1)
+    gamma = make_effect("gamma_quantization", gamma=0.5)
+    write_frames([apply_effects(f, [gamma], rng) for f in sim_frames(8, seed=4)], tmp_path / "real")
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"fit_frames": 3, "eval_frames": 4, "bootstrap": 20,
+                                  "search": {"points": 3, "rounds": 1}}))
+    code = main(["diagnose", "--sim", str(tmp_path / "sim"), "--real", str(tmp_path / "real"), "--out",
+                 str(tmp_path / "out"), "--effects", "gamma_quantization,ring_down", "--config", str(config)])
+    assert code == 0
+    result = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    for key in ("gap_before", "ranked_effects", "selected", "gap_after_selected", "residual"):
+        assert key in result
+    assert {"name", "params", "gap_after"} <= set(result["ranked_effects"][0])
+    assert result["ranked_effects"][0]["name"] == "gamma_quantization"
+    assert isinstance(result["gap_before"], float) and result["gap_before"] > 0
+    assert (tmp_path / "out" / "report.md").read_text().startswith("# Sim-to-real gap diagnosis")
+    assert (tmp_path / "out" / "diag_cells_after.png").stat().st_size > 0
+
+
+def test_bad_input_says_what_is_needed(tmp_path, capsys):
+    sim = sim_frames(4, seed=5)
+    with pytest.raises(ConfigError, match="real set is empty"):
+        diagnose(sim, [], FAST)
+    with pytest.raises(ConfigError, match="at least 4 frames"):
+        diagnose(sim[:3], sim, FAST)
+    other = [f.replace(intensity=f.intensity[:, :96], azimuths_rad=f.azimuths_rad[:96]) for f in sim]
+    with pytest.raises(ConfigError, match="--resample"):
+        diagnose(sim, other, FAST)
+    with pytest.raises(ConfigError, match="unknown effect"):
+        DiagnoseConfig(effects=("sparkle",)).validate()
+    with pytest.raises(ConfigError, match="at least 4"):
+        split_indices(3, 0.5, 0)
+    (tmp_path / "empty").mkdir()
+    write_frames(sim, tmp_path / "sim")
+    code = main(["diagnose", "--sim", str(tmp_path / "sim"), "--real", str(tmp_path / "empty"), "--out",
+                 str(tmp_path / "out")])
+    assert code == 2
+    assert "error" in capsys.readouterr().err

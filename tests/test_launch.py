@@ -1,0 +1,245 @@
+"""Launch files: validation before anything starts, overrides, the resolved config, restart on failure,
+and the `sonar-realism launch` CLI end to end in process mode (incl. SIGINT: clean exit, no orphans)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonar_realism.errors import ConfigError
+from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
+from sonar_realism.io import read_frames, write_frames
+from sonar_realism.runtime.graph import apply_overrides, build_graph
+from sonar_realism.runtime.launch import launch, load_graph
+from sonar_realism.runtime.node import Node
+
+REPO = Path(__file__).resolve().parents[1]
+PROCESS_TIMEOUT_S = 120
+
+
+@dataclass(frozen=True)
+class TickerParams:
+    count: int = 5
+
+
+class Ticker(Node):
+    PARAMS = TickerParams
+    OUTPUTS = {"frames": "polar"}
+
+    def configure(self) -> None:
+        self.next_seq = 0
+
+    def produce(self) -> float | None:
+        if self.next_seq >= self.params.count:
+            return None
+        self.publish("frames", SonarImage(np.zeros((4, 3), np.uint8), uniform_ranges(4, 5.0),
+                                          uniform_azimuths(3, 1.0), seq=self.next_seq))
+        self.next_seq += 1
+        return 0.0
+
+
+@dataclass(frozen=True)
+class FlakyParams:
+    failures: int = 1
+
+
+class FlakySink(Node):
+    """Fails on its first frame in each of its first `failures` lives (lives are counted per class)."""
+
+    PARAMS = FlakyParams
+    INPUTS = {"frames": ("polar",)}
+    lives = 0
+    received: list[int] = []
+
+    def configure(self) -> None:
+        type(self).lives += 1
+
+    def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        if type(self).lives <= self.params.failures:
+            raise RuntimeError("simulated crash")
+        type(self).received.extend(f.seq for f in frames)
+
+
+@dataclass(frozen=True)
+class RelayParams:
+    pass
+
+
+class Relay(Node):
+    PARAMS = RelayParams
+    INPUTS = {"frames": ("polar",)}
+    OUTPUTS = {"frames": "polar"}
+
+
+def graph_data(**nodes) -> dict:
+    return {"launch": {"name": "t"}, "nodes": nodes}
+
+
+SIM = {"type": "sim_source"}
+TRANSLATOR = {"type": "translator", "inputs": {"frames": "sim.frames"}}
+
+
+# ---- validation: everything is checked before anything starts -----------------------------------------
+@pytest.mark.parametrize("nodes, message", [
+    ({"a": {"type": "no_such_node"}}, "unknown node type"),
+    ({"sim": {"type": "sim_source", "params": {"frames_per_second": 3}}}, "unknown key"),
+    ({"sim": SIM, "translator": {"type": "translator"}}, "unconnected input"),
+    ({"sim": SIM, "translator": {"type": "translator", "inputs": {"frames": "sim.masks"}}}, "type mismatch"),
+    ({"sim": SIM, "translator": {"type": "translator", "inputs": {"frames": "sim.sonar"}}}, "no output"),
+    ({"sim": SIM, "translator": {"type": "translator", "inputs": {"frames": "simulator.frames"}}}, "neither"),
+    ({"sim": SIM, "translator": {**TRANSLATOR, "inputs": {"frames": "sim.frames", "extra": "sim.frames"}}},
+     "not an input"),
+    ({"t": {"type": "translator", "inputs": {"frames": {"source": "tcp://127.0.0.1:5555", "policy": "lossless"}}}},
+     "lossless needs an in-graph producer"),
+    ({"sim": SIM, "translator": {**TRANSLATOR, "inputs": {"frames": {"source": "sim.frames", "policy": "newest"}}}},
+     "policy"),
+    ({"a": {"type": "test_launch:Relay", "inputs": {"frames": "b.frames"}},
+      "b": {"type": "test_launch:Relay", "inputs": {"frames": "a.frames"}}}, "cycle"),
+    ({"sim": {**SIM, "bind": {"sonar": "tcp://127.0.0.1:5601"}}}, "not an output"),
+    ({"bad.name": SIM}, "node names"),
+])
+def test_invalid_graphs_are_rejected_with_a_named_reason(nodes, message):
+    with pytest.raises(ConfigError, match=message):
+        build_graph(graph_data(**nodes))
+
+
+def test_unknown_launch_keys_and_bad_overrides_are_rejected():
+    with pytest.raises(ConfigError, match="unknown key"):
+        build_graph({"launch": {"modus": "inproc"}, "nodes": {"sim": SIM}})
+    with pytest.raises(ConfigError, match="no node"):
+        apply_overrides(graph_data(sim=SIM), ["simulator.count=3"])
+    with pytest.raises(ConfigError, match="expected NODE.PARAM=VALUE"):
+        apply_overrides(graph_data(sim=SIM), ["count=3"])
+
+
+def test_an_invalid_launch_file_starts_nothing_and_creates_no_run_folder(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[nodes.sim]\ntype = "sim_source"\n[nodes.rec]\ntype = "recorder"\n')
+    result = subprocess.run([sys.executable, "-m", "sonar_realism.cli", "launch", str(bad), "--out",
+                             str(tmp_path / "run")], capture_output=True, text=True, timeout=PROCESS_TIMEOUT_S)
+    assert result.returncode == 2 and "unconnected input" in result.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_overrides_and_defaults_end_up_in_the_resolved_config(tmp_path):
+    graph = load_graph(REPO / "launch" / "demo.toml", ["sim.count=3", 'translator.device="cpu"', "launch.hwm=4"],
+                       out=str(tmp_path))
+    config = graph.resolved_config()
+    assert config["nodes"]["sim"]["params"]["count"] == 3
+    assert config["nodes"]["translator"]["params"]["device"] == "cpu"
+    assert config["nodes"]["recorder"]["params"]["path"] == f"{tmp_path}/translated"
+    assert config["launch"]["hwm"] == 4 and config["launch"]["out"] == str(tmp_path)
+    # consumers start before sources; lossless edges get one PUSH endpoint each
+    assert graph.start_order.index("recorder") < graph.start_order.index("translator") < \
+        graph.start_order.index("sim")
+    assert len(graph.nodes["sim"].wiring.outputs["frames"].push_endpoints) == 2
+
+
+def test_shipped_launch_files_are_valid():
+    for path in sorted((REPO / "launch").glob("*.toml")):
+        graph = load_graph(path)
+        assert graph.nodes, path
+
+
+# ---- running ------------------------------------------------------------------------------------------
+def test_a_failed_node_is_restarted_when_asked(tmp_path):
+    FlakySink.lives, FlakySink.received = 0, []
+    graph = build_graph({"launch": {"name": "restart", "out": str(tmp_path), "stop_timeout_s": 2.0, "ready_timeout_s": 20.0},
+                         "nodes": {"tick": {"type": "test_launch:Ticker", "params": {"count": 6}},
+                                   "sink": {"type": "test_launch:FlakySink", "inputs": {"frames": "tick.frames"},
+                                            "restart": "on-failure", "max_restarts": 2}}})
+    code, summary = launch(graph, install_signal_handlers=False)
+    assert code == 0 and summary["sink"]["restarts"] == 1 and FlakySink.lives == 2
+    assert FlakySink.received and FlakySink.received == sorted(FlakySink.received)
+    assert FlakySink.received[-1] == 5  # the restarted sink gets the rest of the stream, to its end
+    assert json.loads((tmp_path / "run_summary.json").read_text())["sink"]["restarts"] == 1
+
+
+def test_a_failed_node_without_restart_stops_the_launch_with_an_error(tmp_path):
+    FlakySink.lives, FlakySink.received = 0, []
+    graph = build_graph({"launch": {"name": "fail", "out": str(tmp_path), "stop_timeout_s": 2.0, "ready_timeout_s": 20.0},
+                         "nodes": {"tick": {"type": "test_launch:Ticker", "params": {"count": 1000}},
+                                   "sink": {"type": "test_launch:FlakySink", "inputs": {"frames": "tick.frames"}}}})
+    code, summary = launch(graph, install_signal_handlers=False)
+    assert code == 1 and summary["sink"]["exit_code"] == 1 and summary["tick"]["exit_code"] == 0
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                if text in (entry / "cmdline").read_bytes().decode(errors="replace"):
+                    found.append(int(entry.name))
+            except OSError:
+                continue
+    return found
+
+
+def test_cli_runs_the_demo_in_process_mode_end_to_end(tmp_path):
+    from test_nodes import tiny_checkpoint
+
+    checkpoint = tiny_checkpoint(tmp_path)
+    run = tmp_path / "run"
+    result = subprocess.run(
+        [sys.executable, "-m", "sonar_realism.cli", "launch", str(REPO / "launch" / "demo.toml"), "--mode", "process",
+         "--out", str(run), "--set", "sim.count=2", "--set", f'translator.checkpoint="{checkpoint}"',
+         "--set", "translator.n=2", "--set", 'translator.device="cpu"'],
+        capture_output=True, text=True, timeout=PROCESS_TIMEOUT_S, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    translated = list(read_frames(run / "translated"))
+    assert [f.seq for f in translated] == [0, 1] and translated[0].intensity.shape[0] == 2
+    assert (run / "translated_contact_sheet.png").stat().st_size > 0
+    assert len(list(read_frames(run / "simulated"))) == 2
+    resolved = json.loads((run / "resolved.json").read_text())
+    assert resolved["launch"]["mode"] == "process" and resolved["nodes"]["sim"]["params"]["count"] == 2
+    assert all(item["exit_code"] == 0 for item in json.loads((run / "run_summary.json").read_text()).values())
+    assert not _processes_mentioning(str(run))
+
+
+def test_sigint_to_the_launcher_stops_an_endless_pipeline_cleanly(tmp_path):
+    write_frames([SonarImage(np.full((16, 8), i, np.uint8), uniform_ranges(16, 5.0), uniform_azimuths(8, 1.0),
+                             seq=i) for i in range(5)], tmp_path / "rec")
+    launch_file = tmp_path / "endless.toml"
+    launch_file.write_text(f"""
+[launch]
+mode = "process"
+stop_timeout_s = 5.0
+[nodes.replay]
+type = "file_replay"
+params = {{ path = "{tmp_path / 'rec'}", speed = 0.0, loop = true }}
+[nodes.recorder]
+type = "recorder"
+inputs.frames = "replay.frames"
+params = {{ path = "{{out}}/copy" }}
+""")
+    run = tmp_path / "run"
+    launcher = subprocess.Popen([sys.executable, "-m", "sonar_realism.cli", "launch", str(launch_file), "--out",
+                                 str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        index = run / "copy" / "index.jsonl"
+        deadline = time.monotonic() + PROCESS_TIMEOUT_S
+        while not (index.exists() and index.read_text().count("\n") > 20):  # wait for frames to flow
+            assert launcher.poll() is None and time.monotonic() < deadline, launcher.stderr.read() if \
+                launcher.poll() is not None else "no frames recorded"
+            time.sleep(0.05)
+        launcher.send_signal(signal.SIGINT)
+        _, stderr = launcher.communicate(timeout=PROCESS_TIMEOUT_S)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+    assert launcher.returncode == 0, stderr[-3000:]
+    copy = list(read_frames(run / "copy"))
+    assert len(copy) > 20 and [f.seq for f in copy] == list(range(len(copy)))  # lossless up to the stop
+    summary = json.loads((run / "copy.summary.json").read_text())
+    assert summary["frames"] == len(copy)
+    assert not _processes_mentioning(str(run))

@@ -1,0 +1,140 @@
+"""Each evaluation metric on constructed cases whose answer is known."""
+
+import cv2
+import numpy as np
+import pytest
+
+from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.diversity import sample_diversity
+from sonar_realism.evaluate.kid import kernel_inception_distance
+from sonar_realism.evaluate.realism import bootstrap_ci, summarize_scores
+from sonar_realism.evaluate.structure import edge_ssim, mask_iou, ssim
+from sonar_realism.evaluate.texture import (
+    checkerboard_score,
+    histogram_distance,
+    power_spectra,
+    speckle_statistics,
+    spectral_distance,
+)
+from sonar_realism.evaluate.two_sample import classifier_two_sample_test, roc_auc
+
+GRID = 32
+
+
+def clean_scenes(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Simulator-like clean frames: a dim seabed ramp with one bright box and its shadow; and the box masks."""
+    rng = np.random.default_rng(seed)
+    images = np.zeros((n, GRID, GRID), np.float32)
+    masks = np.zeros((n, GRID, GRID), np.uint8)
+    ramp = np.linspace(0.2, 0.4, GRID, dtype=np.float32)[:, None]
+    for i in range(n):
+        r, c = rng.integers(6, GRID - 14), rng.integers(4, GRID - 10)
+        images[i] = ramp
+        images[i, r:r + 5, c:c + 6] = 1.0
+        images[i, r + 5:, c:c + 6] = 0.02  # acoustic shadow behind the object
+        masks[i, r:r + 5, c:c + 6] = 1
+    return images, masks
+
+
+def speckled(images: np.ndarray, seed: int) -> np.ndarray:
+    """The 'real sensor' effect: fully developed (Rayleigh) speckle on the clean amplitude, max-rescaled."""
+    rng = np.random.default_rng(seed)
+    out = images * rng.rayleigh(1.0 / np.sqrt(np.pi / 2), images.shape).astype(np.float32)
+    return out / out.max(axis=(1, 2), keepdims=True)
+
+
+def test_kid_is_near_zero_for_one_distribution_and_large_for_a_shift():
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(200, 16)), rng.normal(size=(200, 16))
+    same = kernel_inception_distance(x, y, n_subsets=20, subset_size=100)
+    shifted = kernel_inception_distance(x, y + 1.0, n_subsets=20, subset_size=100)
+    identical = kernel_inception_distance(x, x, n_subsets=20, subset_size=100)
+    assert abs(same.mean) < 0.1 and abs(identical.mean) < 0.1  # unbiased: noise around 0, may be negative
+    assert shifted.mean > 1.0
+    with pytest.raises(ConfigError):
+        kernel_inception_distance(x, rng.normal(size=(10, 3)))
+
+
+def test_a_known_blur_moves_the_spectral_distance_and_identical_sets_have_none():
+    images = speckled(clean_scenes(20, 0)[0], 1)
+    blurred = np.stack([cv2.GaussianBlur(im, (0, 0), s) for im, s in zip(images, [1.0] * 20, strict=True)])
+    more = np.stack([cv2.GaussianBlur(im, (0, 0), 2.0) for im in images])
+    reference = power_spectra(images)
+    assert spectral_distance(reference, power_spectra(images.copy())) == 0.0
+    light, heavy = spectral_distance(reference, power_spectra(blurred)), spectral_distance(reference, power_spectra(more))
+    assert 0.1 < light < heavy
+    # Blur takes power from high frequencies: the radial spectrum's tail drops.
+    assert power_spectra(blurred).radial[-3:].mean() < reference.radial[-3:].mean() - 0.5
+
+
+def test_checkerboard_score_flags_a_stride_two_pattern():
+    images = speckled(clean_scenes(20, 0)[0], 1)
+    pattern = np.indices((GRID, GRID)).sum(axis=0) % 2 * 0.3  # period 2 along both axes
+    artefact = images + pattern[None].astype(np.float32)
+    assert checkerboard_score(power_spectra(images)) < 0.5
+    assert checkerboard_score(power_spectra(artefact)) > 1.0
+
+
+def test_speckle_statistics_recover_rayleigh_and_see_heavier_tails():
+    rng = np.random.default_rng(0)
+    rayleigh = rng.rayleigh(1.0, (10, 64, 64))
+    bands = speckle_statistics(rayleigh)
+    assert len(bands) == 4
+    for band in bands:
+        assert band.contrast == pytest.approx(0.5227, abs=0.03)
+        assert band.weibull_k == pytest.approx(2.0, abs=0.15)
+    # K-distributed amplitude: Rayleigh with a gamma-distributed (shape 1) local power -> heavier tail.
+    k_amplitude = rayleigh * np.sqrt(rng.gamma(1.0, 1.0, rayleigh.shape))
+    k_band = speckle_statistics(k_amplitude)[0]
+    assert k_band.contrast > bands[0].contrast + 0.1
+    assert k_band.k_shape < 5 and k_band.weibull_k < 1.8
+
+
+def test_histogram_distance_zero_for_identical_and_grows_with_gain():
+    images = speckled(clean_scenes(10, 0)[0], 1)
+    assert histogram_distance(images, images) == 0.0
+    assert histogram_distance(images, images * 0.5) > histogram_distance(images, images * 0.9) > 0
+
+
+def test_diversity_is_zero_for_a_collapsed_generator_and_positive_for_sampling():
+    clean = clean_scenes(6, 0)[0]
+    collapsed = np.repeat(speckled(clean, 1)[:, None], 4, axis=1)
+    sampled = np.stack([speckled(clean, seed) for seed in range(4)], axis=1)
+    assert sample_diversity(collapsed).relative == 0.0
+    assert sample_diversity(collapsed).pixel_std == 0.0
+    result = sample_diversity(sampled)
+    assert 0.2 < result.relative < 1.5 and result.pairwise_l1 > 0.01
+    with pytest.raises(ConfigError):
+        sample_diversity(collapsed[:, :1])
+
+
+def test_structure_metrics_keep_the_scene_and_reject_another():
+    clean, masks = clean_scenes(2, 3)
+    translated = speckled(clean, 5)
+    assert ssim(clean[0], clean[0]) == pytest.approx(1.0)
+    assert edge_ssim(clean[0], translated[0]) > edge_ssim(clean[0], translated[1]) + 0.05
+    assert mask_iou(masks[0], clean[0]) > 0.8  # the blur that suppresses speckle rounds the box corners
+    assert mask_iou(masks[0], translated[0]) > mask_iou(masks[0], translated[1])
+    assert np.isnan(mask_iou(np.zeros_like(masks[0]), clean[0]))
+
+
+def test_roc_auc_and_bootstrap_known_values():
+    assert roc_auc(np.array([0.9, 0.8, 0.1, 0.2]), np.array([1, 1, 0, 0])) == 1.0
+    assert roc_auc(np.array([0.5, 0.5]), np.array([1, 0])) == 0.5
+    values = np.random.default_rng(0).normal(0.3, 0.1, 400)
+    low, high = bootstrap_ci(values)
+    assert low < 0.3 < high and high - low < 0.05
+    summary = summarize_scores(values)
+    assert summary.p10 < summary.mean < summary.p90 and summary.n == 400
+
+
+def test_two_sample_test_near_chance_for_a_perfect_translator_and_high_for_raw_sim():
+    clean, _ = clean_scenes(48, 0)
+    real = speckled(clean[:24], seed=1)
+    # A perfect translator applies the real sensor's own effect (same process, fresh noise) to new scenes.
+    perfect = speckled(clean[24:], seed=2)
+    raw = clean[24:] / clean[24:].max(axis=(1, 2), keepdims=True)
+    indistinguishable = classifier_two_sample_test(real, perfect, folds=2, seed=0)
+    separable = classifier_two_sample_test(real, raw, folds=2, seed=0)
+    assert abs(indistinguishable.accuracy - 0.5) < 0.2
+    assert separable.accuracy > 0.9 and separable.auc > 0.9

@@ -1,0 +1,269 @@
+"""Node runtime: delivery policies, ordering and seq gaps, malformed input, lossless delivery, readiness,
+status, and shutdown that never hangs. Real inproc sockets, real threads, tiny frames."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from dataclasses import dataclass
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
+from sonar_realism.runtime import EndOfStream, InputPolicy, InputQueue, InputWiring, Node, OutputWiring, SeqTracker
+from sonar_realism.runtime.node import end_of_stream_message
+from sonar_realism.runtime.wiring import Wiring
+from sonar_realism.wire import decode_message, encode_frame
+
+JOIN_TIMEOUT_S = 30.0
+_ids = itertools.count()
+
+
+def tiny_frame(seq: int, stamp_ns: int | None = None, shape: tuple[int, int] = (8, 6)) -> SonarImage:
+    return SonarImage(np.full(shape, seq % 255, np.uint8), uniform_ranges(shape[0], 10.0),
+                      uniform_azimuths(shape[1], 1.0), stamp_ns=time.time_ns() if stamp_ns is None else stamp_ns,
+                      seq=seq)
+
+
+@dataclass(frozen=True)
+class SourceParams:
+    count: int = 10
+    skip: tuple[int, ...] = ()
+
+
+class CountingSource(Node):
+    PARAMS = SourceParams
+    OUTPUTS = {"frames": "polar"}
+
+    def configure(self) -> None:
+        self.seqs = iter(s for s in range(self.params.count) if s not in self.params.skip)
+
+    def produce(self) -> float | None:
+        seq = next(self.seqs, None)
+        if seq is None:
+            return None
+        self.publish("frames", tiny_frame(seq))
+        return 0.0
+
+
+@dataclass(frozen=True)
+class SinkParams:
+    delay_s: float = 0.0
+
+
+class CollectingSink(Node):
+    PARAMS = SinkParams
+    INPUTS = {"frames": ("polar",)}
+
+    def configure(self) -> None:
+        self.frames: list[SonarImage] = []
+
+    def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        if self.params.delay_s:
+            time.sleep(self.params.delay_s)  # a slow consumer (e.g. a model), not a test synchronisation
+        self.frames.extend(frames)
+
+
+def pair(context: zmq.Context, policy: InputPolicy, source: SourceParams, sink: SinkParams = SinkParams(),
+         hwm: int = 16) -> tuple[CountingSource, CollectingSink]:
+    run = next(_ids)
+    pub, push = f"inproc://rt{run}/src", f"inproc://rt{run}/src-to-sink"
+    lossless = policy.policy == "lossless"
+    out = OutputWiring("src/frames", pub, expected_subscribers=0 if lossless else 1,
+                       push_endpoints=(push,) if lossless else (), hwm=hwm)
+    src = CountingSource("src", source, Wiring(outputs={"frames": out}, heartbeat_s=0.2), context)
+    sink_in = InputWiring(push if lossless else pub, "src/frames", policy)
+    sink = CollectingSink("sink", sink, Wiring(inputs={"frames": sink_in}, heartbeat_s=0.2), context)
+    return src, sink
+
+
+def run_all(*nodes: Node) -> None:
+    """Start consumers first (as the launcher does) and fail, rather than hang, if a node does not end."""
+    errors: list[BaseException] = []
+
+    def target(node: Node) -> None:
+        try:
+            node.run()
+        except BaseException as error:
+            errors.append(error)
+
+    threads = [threading.Thread(target=target, args=(n,), daemon=True) for n in reversed(nodes)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(JOIN_TIMEOUT_S)
+    assert not any(t.is_alive() for t in threads), "a node did not finish"
+    assert not errors, errors
+
+
+@pytest.fixture
+def context():
+    ctx = zmq.Context()
+    yield ctx
+    ctx.term()
+
+
+# ---- policies without sockets -------------------------------------------------------------------------
+def test_latest_keeps_only_the_newest_frame_and_counts_drops():
+    queue = InputQueue(InputPolicy("latest"))
+    for seq in range(5):
+        queue.put(tiny_frame(seq))
+    taken = queue.take(10)
+    assert [f.seq for f in taken] == [4]
+    assert queue.dropped == 4 and queue.received == 5
+
+
+def test_fifo_drops_the_oldest_when_full_but_never_end_of_stream():
+    queue = InputQueue(InputPolicy("fifo", capacity=3))
+    for seq in range(5):
+        queue.put(tiny_frame(seq))
+    queue.put(EndOfStream())
+    queue.put(tiny_frame(99))  # after end of stream: ignored
+    taken = queue.take(10)
+    assert [getattr(item, "seq", "eos") for item in taken] == [2, 3, 4, "eos"]
+    assert queue.dropped == 2 and queue.ended
+
+
+def test_lossless_never_drops_and_reports_when_full():
+    queue = InputQueue(InputPolicy("lossless", capacity=2))
+    queue.put(tiny_frame(0))
+    assert queue.has_room()
+    queue.put(tiny_frame(1))
+    assert not queue.has_room()
+    assert [f.seq for f in queue.take(1)] == [0]
+    assert queue.has_room() and queue.dropped == 0
+
+
+def test_stale_frames_are_dropped_when_taken():
+    queue = InputQueue(InputPolicy("fifo", capacity=4, max_age_s=1.0))
+    queue.put(tiny_frame(0, stamp_ns=time.time_ns() - 5_000_000_000))
+    queue.put(tiny_frame(1))
+    assert [f.seq for f in queue.take(4)] == [1]
+    assert queue.stale == 1
+
+
+def test_seq_tracker_counts_gaps_and_out_of_order_frames():
+    tracker = SeqTracker()
+    for seq in (0, 1, 4, 5, 3, 6, 9):
+        tracker.observe(seq)
+    assert tracker.gaps == 2 + 2  # 2,3 missing after 1; 7,8 missing after 6 (3 came late: not a new gap)
+    assert tracker.out_of_order == 1
+
+
+def test_bad_policy_is_a_config_error():
+    from sonar_realism.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="policy"):
+        InputQueue(InputPolicy("newest"))  # type: ignore[arg-type]
+
+
+# ---- over sockets -------------------------------------------------------------------------------------
+def test_lossless_delivers_every_one_of_2000_frames_in_order_to_a_slower_consumer(context):
+    src, sink = pair(context, InputPolicy("lossless", capacity=4), SourceParams(count=2000),
+                     SinkParams(delay_s=0.0002), hwm=4)
+    run_all(src, sink)
+    assert [f.seq for f in sink.frames] == list(range(2000))
+    status = sink.status()
+    assert status["dropped"] == 0 and status["seq_gaps"] == 0 and status["frames_in"] == 2000
+    assert src.status()["frames_out"] == 2000
+
+
+def test_subscribers_get_the_first_frame_because_sources_wait_for_them(context):
+    # fifo over PUB/SUB: without the XPUB readiness wait the first frames would vanish (slow joiner).
+    src, sink = pair(context, InputPolicy("fifo", capacity=64), SourceParams(count=50))
+    run_all(src, sink)
+    assert [f.seq for f in sink.frames] == list(range(50))
+
+
+def test_latest_policy_drops_for_a_slow_consumer_and_the_counts_add_up(context):
+    src, sink = pair(context, InputPolicy("latest"), SourceParams(count=300), SinkParams(delay_s=0.01))
+    run_all(src, sink)
+    status = sink.status()
+    seqs = [f.seq for f in sink.frames]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    assert status["dropped"] > 0
+    assert status["frames_in"] == len(seqs) + status["dropped"]
+    assert status["frames_in"] + status["seq_gaps"] <= 300
+
+
+def test_seq_gaps_from_the_source_are_counted_downstream(context):
+    src, sink = pair(context, InputPolicy("lossless"), SourceParams(count=20, skip=(3, 4, 10)))
+    run_all(src, sink)
+    assert [f.seq for f in sink.frames] == [s for s in range(20) if s not in (3, 4, 10)]
+    assert sink.status()["seq_gaps"] == 3
+
+
+def test_malformed_messages_are_counted_and_the_node_keeps_running(context):
+    endpoint = f"inproc://rt{next(_ids)}/raw"
+    push = context.socket(zmq.PUSH)
+    push.bind(endpoint)
+    sink = CollectingSink("sink", SinkParams(), Wiring(
+        inputs={"frames": InputWiring(endpoint, "raw/frames", InputPolicy("lossless"))}), context)
+    good = encode_frame(tiny_frame(7), "raw/frames")
+    wrong_version = [b"raw/frames", msgpack.packb({**msgpack.unpackb(good[1]), "v": 99}), good[2]]
+    short_buffer = [good[0], good[1], bytes(good[2])[:-5]]
+    garbage = [b"raw/frames", b"\xc1\xff not msgpack", b"xx"]
+    thread = threading.Thread(target=sink.run, daemon=True)
+    thread.start()
+    for message in (garbage, wrong_version, short_buffer, [b"only one part"], good,
+                    end_of_stream_message("raw/frames", "test", "finished")):
+        push.send_multipart(message)  # a PUSH waits for its peer: no message is sent before the sink connects
+    thread.join(JOIN_TIMEOUT_S)
+    push.close(linger=0)
+    assert not thread.is_alive()
+    assert [f.seq for f in sink.frames] == [7]
+    assert sink.status()["malformed"] == 4
+
+
+def test_status_heartbeat_reports_counters_and_the_final_state(context):
+    status_endpoint = f"inproc://rt{next(_ids)}/status"
+    sub = context.socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(status_endpoint)
+    src, sink = pair(context, InputPolicy("lossless"), SourceParams(count=30))
+    sink = CollectingSink("sink", SinkParams(), Wiring(inputs=sink.wiring.inputs, status_endpoint=status_endpoint,
+                                                       status_subscribers=1, heartbeat_s=0.05), context)
+    run_all(src, sink)
+    reports = []
+    while sub.poll(200):
+        reports.append(decode_message(sub.recv_multipart()))
+    sub.close(linger=0)
+    states = [body["state"] for topic, kind, body in reports]
+    assert all(topic == "sink/status" and kind == "status" for topic, kind, _ in reports)
+    assert states[-1] == "stopped" and "running" in states
+    assert reports[-1][2]["frames_in"] == 30
+
+
+def test_stop_while_waiting_for_consumers_returns_and_shutdown_is_idempotent(context):
+    out = OutputWiring("src/frames", f"inproc://rt{next(_ids)}/src", expected_subscribers=1)
+    src = CountingSource("src", SourceParams(count=5), Wiring(outputs={"frames": out}), context)
+    thread = threading.Thread(target=src.run, daemon=True)
+    thread.start()
+    src.request_stop()
+    thread.join(JOIN_TIMEOUT_S)
+    assert not thread.is_alive() and src.state == "stopped"
+    src.shutdown()
+    src.shutdown()
+
+
+def test_stop_while_blocked_on_a_full_lossless_consumer_never_hangs(context):
+    # The consumer never reads: the source's PUSH fills up and it waits; a stop request must still end it.
+    endpoint = f"inproc://rt{next(_ids)}/push"
+    out = OutputWiring("src/frames", f"inproc://rt{next(_ids)}/pub", push_endpoints=(endpoint,), hwm=1)
+    src = CountingSource("src", SourceParams(count=10_000), Wiring(outputs={"frames": out}, eos_linger_s=0.2),
+                         context)
+    pull = context.socket(zmq.PULL)
+    pull.rcvhwm = 1
+    pull.connect(endpoint)
+    thread = threading.Thread(target=src.run, daemon=True)
+    thread.start()
+    assert pull.poll(5000)  # the source is running and has filled the pipe
+    src.request_stop()
+    thread.join(JOIN_TIMEOUT_S)
+    pull.close(linger=0)
+    assert not thread.is_alive() and src.state == "stopped"
+    assert src.status()["frames_out"] < 10_000

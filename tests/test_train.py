@@ -1,0 +1,137 @@
+"""Two-cycle cDFCVAE training on tiny data: loss goes down, early stopping, resume, CLI config."""
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+from safetensors.torch import load_file
+
+from sonar_realism.config import from_dict
+from sonar_realism.datasets import load_grid_frames, split_by_recording
+from sonar_realism.errors import ConfigError
+from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
+from sonar_realism.io import write_frames
+from sonar_realism.models.cdfcvae import CDFCVAEConfig, PerceptualConfig, load_checkpoint
+from sonar_realism.train import EarlyStopping, TrainConfig, add_arguments, config_from_args, fit
+
+TINY_MODEL = CDFCVAEConfig(grid=(16, 16), widths=(4, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0)
+TINY_LOSS = PerceptualConfig(layers=("relu1_1",), layer_weights=(1.0,), weights="random")
+
+
+def _frames(n, recording, seed, shape=(24, 20)):
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        image = (rng.rayleigh(40, shape) + 60 * (np.arange(shape[0])[:, None] > shape[0] // 2)).clip(0, 255)
+        yield SonarImage(image.astype(np.uint8), uniform_ranges(shape[0], 20.0),
+                         uniform_azimuths(shape[1], np.radians(130)), seq=i, meta={"recording": recording})
+
+
+@pytest.fixture
+def data(tmp_path):
+    real = tmp_path / "real"
+    write_frames([*_frames(10, "rec_a", 0), *_frames(4, "rec_b", 1)], real)
+    sim = tmp_path / "sim"
+    write_frames(_frames(8, "sim", 2, shape=(16, 16)), sim)
+    return real, sim
+
+
+def _cfg(**kw):
+    return TrainConfig(model=TINY_MODEL, perceptual=TINY_LOSS, batch_size=4, learning_rate=3e-3, **kw)
+
+
+def test_real_frames_are_split_by_recording(data):
+    real, _ = data
+    frames = load_grid_frames(real, (16, 16))
+    assert frames.images.shape == (14, 16, 16) and frames.images.max() == pytest.approx(1.0)
+    train, val, how = split_by_recording(frames)
+    assert {frames.recordings[i] for i in val} == {"rec_b"} and len(train) == 10 and "rec_b" in how
+    train, val, _ = split_by_recording(frames, ["rec_a"])
+    assert len(val) == 10
+    with pytest.raises(ConfigError, match="rec_z"):
+        split_by_recording(frames, ["rec_z"])
+
+
+def test_loss_decreases_and_both_cycles_write_a_checkpoint(data, tmp_path):
+    real, sim = data
+    out = tmp_path / "run"
+    result = fit(_cfg(epochs1=6, epochs2=2, patience=10), real, sim, out, device="cpu", progress=False)
+    assert result["finished"]
+    history = json.loads((out / "state.json").read_text())["history"]
+    cycle1 = [row["train_loss"] for row in history["1"]]
+    assert len(cycle1) == 6 and cycle1[-1] < 0.9 * cycle1[0]
+    assert len(history["2"]) == 2
+    record = json.loads((out / "early_stopping.json").read_text())
+    assert record["n_real"] == [10, 4] and record["cycles"]["2"]["epochs_done"] == 2
+    model, info = load_checkpoint(out / "model.safetensors")
+    assert info["trained_cycles"] == 2 and model.cfg == TINY_MODEL
+    # Cycle 2 trains only the simulation encoder: the decoder is cycle 1's.
+    cycle1_weights = load_file(str(out / "cycle1.safetensors"))
+    final = load_file(str(out / "model.safetensors"))
+    assert all((final[k] == cycle1_weights[k]).all() for k in final if k.startswith("decoder."))
+    assert any((final[k] != cycle1_weights[k]).any() for k in final if k.startswith("encoder_sim."))
+    assert (out / "loss_curves.png").stat().st_size > 1000
+
+
+def test_resume_gives_the_same_result_as_an_uninterrupted_run(data, tmp_path):
+    real, sim = data
+    cfg = _cfg(epochs1=3, epochs2=2, patience=10)
+    fit(cfg, real, sim, tmp_path / "straight", device="cpu", progress=False)
+    first = fit(cfg, real, sim, tmp_path / "split", device="cpu", progress=False, max_epochs_now=2)
+    assert not first["finished"] and not (tmp_path / "split" / "model.safetensors").exists()
+    second = fit(cfg, real, sim, tmp_path / "split", device="cpu", progress=False, resume=True, max_epochs_now=2)
+    assert not second["finished"]  # stopped inside cycle 2 this time
+    assert fit(cfg, real, sim, tmp_path / "split", device="cpu", progress=False, resume=True)["finished"]
+    a = load_file(str(tmp_path / "straight" / "model.safetensors"))
+    b = load_file(str(tmp_path / "split" / "model.safetensors"))
+    assert a.keys() == b.keys() and all((a[k] == b[k]).all() for k in a)
+    history_a = json.loads((tmp_path / "straight" / "state.json").read_text())["history"]
+    history_b = json.loads((tmp_path / "split" / "state.json").read_text())["history"]
+    assert history_a == history_b
+
+
+def test_resume_refuses_a_different_configuration(data, tmp_path):
+    real, sim = data
+    fit(_cfg(epochs1=1, epochs2=0), real, None, tmp_path / "run", device="cpu", progress=False)
+    with pytest.raises(ConfigError, match="different configuration"):
+        fit(_cfg(epochs1=2, epochs2=0, seed=5), real, None, tmp_path / "run", device="cpu", progress=False,
+            resume=True)
+    with pytest.raises(ConfigError, match="no training state"):
+        fit(_cfg(), real, None, tmp_path / "empty", device="cpu", progress=False, resume=True)
+
+
+def test_early_stopping_record():
+    record = EarlyStopping(patience=2, min_improvement=0.01)
+    assert record.update(10.0) and record.update(9.0)
+    assert not record.update(8.95)  # less than 1 % better: not progress
+    assert not record.stopped
+    assert not record.update(9.5)
+    assert record.stopped and record.best_epoch == 2 and record.best_loss == 9.0
+    assert "2 epochs" in record.stopped_reason
+
+
+def test_early_stopping_ends_a_cycle_and_keeps_the_best_epoch(data, tmp_path):
+    real, _ = data
+    # A learning rate this large diverges after the first epochs, so the validation loss stops improving.
+    cfg = TrainConfig(model=TINY_MODEL, perceptual=TINY_LOSS, batch_size=4, learning_rate=5.0, epochs1=30,
+                      epochs2=0, patience=2)
+    result = fit(cfg, real, None, tmp_path / "run", device="cpu", progress=False)
+    record = result["cycles"]["1"]
+    assert record["epochs_done"] < 30 and "no improvement" in record["stopped_reason"]
+    assert record["epochs_done"] == record["best_epoch"] + 2
+
+
+def test_cli_flags_override_the_json_config_and_unknown_keys_are_rejected(tmp_path):
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    config = tmp_path / "cfg.json"
+    config.write_text(json.dumps({"epochs1": 7, "batch_size": 3, "model": {"latent_dim": 12}}))
+    args = parser.parse_args(["--real", "r", "--out", "o", "--config", str(config), "--batch-size", "5",
+                              "--grid", "64x32"])
+    cfg = config_from_args(args)
+    assert (cfg.epochs1, cfg.batch_size, cfg.model.latent_dim, cfg.model.grid) == (7, 5, 12, (64, 32))
+    config.write_text(json.dumps({"learning_rat": 1e-3}))
+    with pytest.raises(ConfigError, match="learning_rat"):
+        config_from_args(args)
+    with pytest.raises(ConfigError, match="grid"):
+        from_dict(TrainConfig, {"model": {"grid": [100, 128]}})

@@ -1,0 +1,287 @@
+"""Wire format: round trips, zero-copy over real sockets, every rejection path, fuzzing."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from sonar_realism.errors import WireError
+from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, uniform_azimuths, uniform_ranges
+from sonar_realism.wire import (
+    FRAME_TYPE,
+    MAX_HEADER_BYTES,
+    STATUS_TYPE,
+    decode_frame,
+    decode_message,
+    encode_frame,
+    encode_status,
+)
+
+OCULUS_LIKE_BEARINGS = np.sin(np.linspace(-1.0, 1.0, 16)) * 1.13  # non-uniform, like an Oculus table
+
+
+def make_frame(dtype=np.uint8, shape=(24, 16), seq=7, meta=None) -> SonarImage:
+    rng = np.random.default_rng(seq)
+    dtype = np.dtype(dtype)
+    if dtype.kind == "f":
+        intensity = rng.random(shape).astype(dtype)
+    else:
+        intensity = rng.integers(0, np.iinfo(dtype).max, size=shape, dtype=dtype, endpoint=True)
+    return SonarImage(intensity, uniform_ranges(shape[-2], 30.0, 0.3), np.sin(np.linspace(-1.0, 1.0, shape[-1])),
+                      stamp_ns=1_754_406_000_123_456_789, seq=seq, frame_id="oculus_m1200d",
+                      meta=meta if meta is not None else {"frequency_hz": 1.2e6, "gain_percent": 40.0})
+
+
+def to_bytes(parts: list) -> list[bytes]:
+    return [bytes(part) for part in parts]
+
+
+def assert_same_frame(got: SonarImage, want: SonarImage) -> None:
+    assert got.intensity.dtype == want.intensity.dtype
+    np.testing.assert_array_equal(got.intensity, want.intensity)
+    np.testing.assert_allclose(got.ranges_m, want.ranges_m, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.azimuths_rad, want.azimuths_rad)
+    assert (got.stamp_ns, got.seq, got.frame_id, got.intensity_scale) == (
+        want.stamp_ns, want.seq, want.frame_id, want.intensity_scale)
+
+
+@pytest.mark.parametrize("dtype", SUPPORTED_DTYPES, ids=str)
+@pytest.mark.parametrize("shape", [(24, 16), (3, 24, 16)], ids=["plain", "samples"])
+def test_round_trip_every_dtype_with_and_without_sample_axis(dtype, shape):
+    frame = make_frame(dtype, shape)
+    topic, decoded = decode_frame(to_bytes(encode_frame(frame, "sim/frames")))
+    assert topic == "sim/frames"
+    assert decoded.intensity.shape == shape
+    assert_same_frame(decoded, frame)
+    assert decoded.meta == frame.meta
+
+
+@pytest.mark.parametrize("dtype", [">u2", ">u4", ">f4", ">f8"])
+def test_big_endian_frames_keep_their_values(dtype):
+    frame = make_frame(np.dtype(dtype).newbyteorder("="))
+    swapped = frame.replace(intensity=frame.intensity.astype(dtype))
+    parts = encode_frame(swapped, "t")
+    assert msgpack.unpackb(parts[1])["dtype"] == dtype
+    _, decoded = decode_frame(to_bytes(parts))
+    np.testing.assert_array_equal(decoded.intensity.astype(frame.intensity.dtype), frame.intensity)
+
+
+def test_uniform_ranges_travel_compactly_and_explicit_bearings_exactly():
+    frame = make_frame(shape=(2000, 16))
+    header = msgpack.unpackb(encode_frame(frame, "t")[1])
+    assert set(header["ranges_m"]) == {"start", "step", "count"}
+    assert len(header["azimuths_rad"]) == 16 * 8  # bin of float64: non-uniform bearings are never rounded
+    _, decoded = decode_frame(to_bytes(encode_frame(frame, "t")))
+    assert_same_frame(decoded, frame)
+
+
+def test_provenance_lands_in_meta_and_explicit_provenance_wins():
+    frame = make_frame(meta={"source": "sim", "provenance": {"node": "old"}})
+    _, forwarded = decode_frame(to_bytes(encode_frame(frame, "t")))
+    assert forwarded.meta == {"source": "sim", "provenance": {"node": "old"}}
+    provenance = {"input_seq": 41, "input_stamp_ns": 5, "checkpoint_sha256": "ab" * 32, "node": "translator"}
+    _, translated = decode_frame(to_bytes(encode_frame(frame, "t", provenance=provenance)))
+    assert translated.meta == {"source": "sim", "provenance": provenance}
+
+
+def test_numpy_values_in_meta_become_plain_values():
+    frame = make_frame(meta={"gain": np.float32(0.5), "beams": np.arange(3), "n": np.int64(4)})
+    _, decoded = decode_frame(to_bytes(encode_frame(frame, "t")))
+    assert decoded.meta == {"gain": 0.5, "beams": [0, 1, 2], "n": 4}
+
+
+def test_non_contiguous_intensity_is_sent_in_c_order():
+    frame = make_frame(shape=(16, 24))
+    transposed = frame.replace(intensity=frame.intensity.T, ranges_m=uniform_ranges(24, 10.0),
+                               azimuths_rad=uniform_azimuths(16, 2.0))
+    _, decoded = decode_frame(to_bytes(encode_frame(transposed, "t")))
+    np.testing.assert_array_equal(decoded.intensity, frame.intensity.T)
+
+
+def test_data_part_is_the_arrays_own_memory():
+    frame = make_frame(np.float32, (64, 32))
+    data = encode_frame(frame, "t")[2]
+    assert np.shares_memory(np.frombuffer(data, np.uint8), frame.intensity)
+
+
+@pytest.fixture
+def pair():
+    context = zmq.Context()
+    sender, receiver = context.socket(zmq.PAIR), context.socket(zmq.PAIR)
+    sender.linger = receiver.linger = 0
+    receiver.bind("inproc://wire-test")
+    sender.connect("inproc://wire-test")
+    yield sender, receiver
+    sender.close()
+    receiver.close()
+    context.term()
+
+
+def test_zero_copy_over_a_real_inproc_socket(pair):
+    sender, receiver = pair
+    frame = make_frame(np.float32, (512, 256))  # 512 KiB: above pyzmq's 64 KiB copy threshold
+    sender.send_multipart(encode_frame(frame, "sonar/sim"), copy=False)
+    parts = receiver.recv_multipart(copy=False)
+    topic, decoded = decode_frame(parts)
+    assert topic == "sonar/sim"
+    assert_same_frame(decoded, frame)
+    # The view is over the received ZeroMQ message; over inproc that message is the sender's array itself.
+    assert np.shares_memory(decoded.intensity, np.frombuffer(parts[2].buffer, np.uint8))
+    assert np.shares_memory(decoded.intensity, frame.intensity)
+    assert not decoded.intensity.flags.writeable
+
+
+def test_status_round_trip_over_a_socket(pair):
+    sender, receiver = pair
+    status = {"node": "translator", "state": "running", "seq": 3, "frames_in": 10, "frames_out": 9,
+              "dropped": 1, "seq_gaps": 0, "malformed": 2, "inference_ms": 12.5, "uptime_s": 4.0,
+              "endpoint": "tcp://127.0.0.1:5556"}
+    sender.send_multipart(encode_status("translator/status", status))
+    topic, kind, decoded = decode_message(receiver.recv_multipart(copy=False))
+    assert (topic, kind, decoded) == ("translator/status", STATUS_TYPE, status)
+    with pytest.raises(WireError, match="expected a frame message"):
+        decode_frame(encode_status("translator/status", status))
+
+
+def test_decode_message_reports_frames_as_frames():
+    frame = make_frame()
+    topic, kind, decoded = decode_message(to_bytes(encode_frame(frame, "a/b")))
+    assert (topic, kind) == ("a/b", FRAME_TYPE)
+    assert_same_frame(decoded, frame)
+
+
+@pytest.mark.parametrize("status, field", [
+    ({"state": "running"}, "node"),
+    ({"node": "n", "state": "dancing"}, "state"),
+    ({"node": "n", "state": "running", "frames_in": -1}, "frames_in"),
+    ({"node": "n", "state": "running", "dropped": 1.5}, "dropped"),
+    ({"node": "n", "state": "running", "inference_ms": math.nan}, "inference_ms"),
+    ({"node": "n", "state": "running", "log": object()}, "cannot encode"),
+])
+def test_bad_status_is_rejected(status, field):
+    with pytest.raises(WireError, match=field):
+        encode_status("n/status", status)
+
+
+def header_of(frame: SonarImage, **changes) -> bytes:
+    header = msgpack.unpackb(encode_frame(frame, "t")[1])
+    header.update(changes)
+    return msgpack.packb({k: v for k, v in header.items() if v is not None}, use_bin_type=True)
+
+
+FRAME = make_frame(np.uint16, (24, 16))
+DATA = FRAME.intensity.tobytes()
+
+
+@pytest.mark.parametrize("parts, message", [
+    ([b"t", header_of(FRAME, v=2), DATA], "version 2 is not supported"),
+    ([b"t", header_of(FRAME, v=True), DATA], "version True"),
+    ([b"t", header_of(FRAME), DATA[:-2]], "expected 768 bytes .* got 766"),
+    ([b"t", header_of(FRAME), DATA + b"\0\0"], "expected 768 bytes .* got 770"),
+    ([b"t", header_of(FRAME, dtype="<i2"), DATA], "unknown dtype '<i2'"),
+    ([b"t", header_of(FRAME, dtype="float16"), DATA], "unknown dtype"),
+    ([b"t", header_of(FRAME, meta={"pad": "x" * MAX_HEADER_BYTES}), DATA], "exceeds the 65536-byte limit"),
+    ([b"t", b"\xc1\x00garbage", DATA], "not valid msgpack"),
+    ([b"t", msgpack.packb([1, 2, 3]), DATA], "expected a msgpack map"),
+    ([b"t", header_of(FRAME) + b"\x00", DATA], "not valid msgpack"),
+    ([b"t", header_of(FRAME)], "3 parts"),
+    ([b"t", header_of(FRAME), DATA, DATA], "got 4"),
+    ([b"t"], "got 1"),
+    ([b"\xff\xfe", header_of(FRAME), DATA], "topic: not UTF-8"),
+    ([b"t", header_of(FRAME, type="image"), DATA], "field 'type'"),
+    ([b"t", header_of(FRAME, shape=[16, 24, 0]), DATA], "field 'shape'"),
+    ([b"t", header_of(FRAME, shape=[384]), DATA], "field 'shape'"),
+    ([b"t", header_of(FRAME, layout="beam_range"), DATA], "field 'layout'"),
+    ([b"t", header_of(FRAME, seq=None), DATA], "missing field.*seq"),
+    ([b"t", header_of(FRAME, seq=-1), DATA], "seq"),
+    ([b"t", header_of(FRAME, stamp_ns="now"), DATA], "stamp_ns"),
+    ([b"t", header_of(FRAME, frame_id=3), DATA], "frame_id"),
+    ([b"t", header_of(FRAME, meta=[1]), DATA], "field 'meta'"),
+    ([b"t", header_of(FRAME, provenance="me"), DATA], "field 'provenance'"),
+    ([b"t", header_of(FRAME, ranges_m={"start": 0, "step": 1, "count": 23}), DATA], "count 23"),
+    ([b"t", header_of(FRAME, ranges_m={"start": 0, "step": -1, "count": 24}), DATA], "strictly increasing"),
+    ([b"t", header_of(FRAME, azimuths_rad=b"\0" * 8), DATA], "expected 16 float64"),
+    ([b"t", header_of(FRAME, azimuths_rad=list(range(16))), DATA], "beyond"),
+    ([b"t", header_of(FRAME, azimuths_rad="left"), DATA], "azimuths_rad"),
+    ([b"t", msgpack.packb({"v": 1, "type": "frame", "x": msgpack.ExtType(5, b"")}), DATA], "extension type"),
+    ([b"t", msgpack.packb({"v": 1, "type": "status"})], "missing field"),
+    ([b"t", msgpack.packb({"v": 1, "type": "status", "status": {"node": "n"}})], "state"),
+    ([b"t", msgpack.packb({"v": 1, "type": "status", "status": {"node": "n", "state": "running"}}), b""], "2 parts"),
+    ([b"t", memoryview(np.zeros((4, 4), np.uint8)[:, ::2]), DATA], "contiguous"),
+    ([b"t", "a str, not bytes", DATA], "expected bytes"),
+])
+def test_malformed_messages_raise_wire_error(parts, message):
+    with pytest.raises(WireError, match=message):
+        decode_message(parts)
+
+
+def test_nan_in_a_float_frame_is_rejected():
+    frame = make_frame(np.float32)
+    data = bytearray(frame.intensity.tobytes())
+    data[:4] = np.float32(np.nan).tobytes()
+    with pytest.raises(WireError, match="NaN"):
+        decode_frame([b"t", bytes(encode_frame(frame, "t")[1]), bytes(data)])
+
+
+def test_encoder_rejects_what_a_receiver_would_reject():
+    with pytest.raises(WireError, match="exceeds the 65536-byte limit"):
+        encode_frame(make_frame(meta={"blob": b"\0" * MAX_HEADER_BYTES}), "t")
+    with pytest.raises(WireError, match="cannot encode"):
+        encode_frame(make_frame(meta={"when": object()}), "t")
+    with pytest.raises(WireError, match="topic"):
+        encode_frame(make_frame(), "t" * 2000)
+
+
+def test_a_hand_written_header_with_list_geometry_decodes():
+    header = {"v": 1, "type": "frame", "seq": 0, "stamp_ns": 0, "frame_id": "sonar", "dtype": "|u1",
+              "shape": [2, 3], "layout": "range_beam", "ranges_m": [1.0, 2], "azimuths_rad": [-0.5, 0.0, 0.5],
+              "unknown_future_key": {"ignored": True}}
+    _, frame = decode_frame([b"sim", msgpack.packb(header), bytes([0, 1, 2, 3, 4, 255])])
+    np.testing.assert_array_equal(frame.intensity, [[0, 1, 2], [3, 4, 255]])
+    np.testing.assert_array_equal(frame.ranges_m, [1.0, 2.0])
+    assert frame.intensity_scale == 255.0 and frame.meta == {}
+
+
+json_like = st.recursive(
+    st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=8) | st.binary(max_size=8),
+    lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=6), children, max_size=4),
+    max_leaves=12)
+header_keys = st.sampled_from(["v", "type", "seq", "stamp_ns", "sent_ns", "frame_id", "dtype", "shape", "layout",
+                               "ranges_m", "azimuths_rad", "intensity_scale", "meta", "provenance", "status"])
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(changes=st.dictionaries(header_keys, json_like, max_size=4), drop=st.sets(header_keys, max_size=3),
+       data=st.binary(max_size=900), two_parts=st.booleans())
+def test_fuzzed_headers_raise_only_wire_error(changes, drop, data, two_parts):
+    header = msgpack.unpackb(encode_frame(FRAME, "t")[1])
+    header.update(changes)
+    for key in drop:
+        header.pop(key, None)
+    try:
+        packed = msgpack.packb(header, use_bin_type=True)
+    except (OverflowError, ValueError):
+        return  # ints beyond 64 bits cannot even be packed, so no publisher can send them
+    parts = [b"t", packed] if two_parts else [b"t", packed, data]
+    try:
+        topic, kind, body = decode_message(parts)
+    except WireError:
+        return
+    assert kind in (FRAME_TYPE, STATUS_TYPE)
+    if kind == FRAME_TYPE:
+        assert body.intensity.nbytes == len(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(parts=st.lists(st.binary(max_size=64), min_size=0, max_size=4))
+def test_fuzzed_bytes_raise_only_wire_error(parts):
+    try:
+        decode_message(parts)
+    except WireError:
+        pass
