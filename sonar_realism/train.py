@@ -257,8 +257,6 @@ class Trainer:
                           f"(kl {row['val_kl']:.3g}){' *' if record.best_epoch == record.epochs_done else ''}",
                           file=sys.stderr)
                 self.save_state()
-        if not record.stopped:
-            record.stopped_reason = f"reached the epoch limit ({max_epochs})"
         return True
 
     def finish_cycle1(self) -> None:
@@ -276,8 +274,11 @@ class Trainer:
 
     # --- persistence
     def _checkpoint_info(self) -> dict[str, Any]:
-        return {"normalisation": self.cfg.normalisation, "trained_cycles": self.cycle,
-                "early_stopping": {k: vars(v) for k, v in self.stopping.items()},
+        limits = {"1": self.cfg.epochs1, "2": self.cfg.epochs2}
+        # Reaching the epoch limit is not recorded as a stop, so a finished run can be extended with --resume.
+        records = {k: {**vars(v), "stopped_reason": v.stopped_reason or f"reached the epoch limit ({limits[k]})"}
+                   for k, v in self.stopping.items() if v.epochs_done}
+        return {"normalisation": self.cfg.normalisation, "trained_cycles": self.cycle, "early_stopping": records,
                 "perceptual": to_dict(self.cfg.perceptual)}
 
     def save_state(self) -> None:

@@ -49,16 +49,18 @@ def test_single_effect_by_another_implementation_is_identified(sets, name, param
     assert blind.param_error[name] < 0.35
 
 
-def test_withheld_lens_reflection_is_left_as_residual_at_its_range(sets):
+def test_withheld_lens_reflection_is_left_as_residual_at_its_range():
+    # Sim and "real" alternate along one trajectory, so the withheld band is the only systematic difference
+    # (two different scenes differ in ways that 8 held-out frames cannot tell from the band).
+    frames = [frame for frame, _ in simulate(n=32, seed=7, sensor=SENSOR)]
     hidden = {"lens_reflection": {"at_fraction": 0.62, "width_fraction": 0.02, "amplitude": 0.5}}
-    blind, diagnosis = blind_run(*sets, hidden, CONFIG)
+    blind, diagnosis = blind_run(frames[0::2], frames[1::2], hidden, CONFIG)
     residual = diagnosis.summary["residual"]
     assert blind.gap_closed < 0.5  # no catalogued effect explains a fixed bright band
     assert residual["significant"]
     band_m = SENSOR.min_range_m + 0.62 * (SENSOR.max_range_m - SENSOR.min_range_m)
-    top = residual["cells"][0]
-    assert top["range_m"][0] - 0.7 <= band_m <= top["range_m"][1] + 0.7
-    assert "range_profile" in [f["name"] for f in residual["families"][:3]]
+    for cell in residual["cells"][:3]:  # the residual lies along the band's range, whatever the bearing
+        assert cell["range_m"][0] - 0.7 <= band_m <= cell["range_m"][1] + 0.7
 
 
 def test_make_real_rejects_effects_it_cannot_make(sets):

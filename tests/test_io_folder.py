@@ -3,11 +3,14 @@
 import json
 import math
 import shutil
+import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sonar_realism import FormatError, FrameError, SonarImage
 from sonar_realism.frames import uniform_azimuths, uniform_ranges
@@ -63,6 +66,20 @@ def test_round_trip_is_lossless_for_every_dtype_and_sample_axis(tmp_path):
     same = [FRAMES[0].replace(seq=i) for i in range(3)]
     write_frames(same, tmp_path / "shared")
     assert len(list((tmp_path / "shared" / "geometry").iterdir())) == 1
+
+
+@settings(max_examples=25, deadline=None)
+@given(dtype=st.sampled_from([np.uint8, np.uint16, np.uint32, np.float32, np.float64]),
+       samples=st.sampled_from([None, 1, 2]), n_ranges=st.integers(1, 9), n_beams=st.integers(1, 9),
+       stamp_ns=st.integers(0, 2**63 - 1), seq=st.integers(0, 2**32), seed=st.integers(0, 1000))
+def test_any_frame_round_trips_through_a_folder(dtype, samples, n_ranges, n_beams, stamp_ns, seq, seed):
+    shape = (n_ranges, n_beams) if samples is None else (samples, n_ranges, n_beams)
+    frame = make(dtype, shape, seed, stamp_ns=stamp_ns, seq=seq, meta={"seed": seed})
+    with tempfile.TemporaryDirectory() as folder:
+        write_frames([frame, frame.replace(seq=seq + 1)], folder)
+        first, second = read_frames(folder)
+    assert_same(frame, first)
+    assert second.seq == seq + 1
 
 
 def test_numpy_meta_values_become_plain_json(tmp_path):

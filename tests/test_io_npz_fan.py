@@ -35,17 +35,17 @@ def stack(n, dtype=np.float32, samples=None, seed=0):
 
 def test_npz_round_trip_with_samples_stamps_and_meta(tmp_path):
     frames = stack(4, np.float32, samples=3)
-    assert write_frames(iter(frames), tmp_path / "rec.npz") == 4
-    assert sniff(tmp_path / "rec.npz") == "npz"
+    assert write_frames(iter(frames), tmp_path / "new" / "rec.npz") == 4
+    assert sniff(tmp_path / "new" / "rec.npz") == "npz"
     report = ReadReport()
-    back = list(read_frames(tmp_path / "rec.npz", report))
+    back = list(read_frames(tmp_path / "new" / "rec.npz", report))
     assert report.frames == 4 and not report.skipped
     for a, b in zip(frames, back, strict=True):
         np.testing.assert_array_equal(a.intensity, b.intensity)
         np.testing.assert_array_equal(a.azimuths_rad, b.azimuths_rad)
         assert (a.stamp_ns, a.seq, a.frame_id, a.meta) == (b.stamp_ns, b.seq, b.frame_id, b.meta)
     # np.load sees an ordinary NPZ.
-    with np.load(tmp_path / "rec.npz") as data:
+    with np.load(tmp_path / "new" / "rec.npz") as data:
         assert data["intensity"].shape == (4, 3, 48, 32)
 
 
@@ -145,6 +145,18 @@ def test_fan_geometry_is_measured_from_the_image_when_the_sidecar_leaves_it_out(
     assert np.degrees(frame.fov_rad) == pytest.approx(30.0, abs=1.0)
     # A polar image is not mistaken for a fan.
     assert detect_fan(polar.intensity) is None
+
+
+def test_a_fan_with_its_apex_at_the_top_reads_the_same_as_upright(tmp_path):
+    image = polar_to_fan(fan_source(), 300)
+    cv2.imwrite(str(tmp_path / "up.png"), image)
+    cv2.imwrite(str(tmp_path / "down.png"), np.ascontiguousarray(image[::-1]))
+    up, down = read_frames(tmp_path / "up.png"), read_frames(tmp_path / "down.png")
+    up, down = next(up), next(down)
+    assert detect_fan(image[::-1]).range_up is False
+    assert down.same_geometry(up, atol=0.02)
+    difference = np.abs(down.intensity.astype(float) - up.intensity)
+    assert difference[2:-2, 2:-2].mean() < 2.0
 
 
 def test_fan_sidecar_on_an_image_that_is_not_a_fan_names_the_missing_key(tmp_path):

@@ -153,20 +153,25 @@ def test_shipped_launch_files_are_valid():
 # ---- running ------------------------------------------------------------------------------------------
 def test_a_failed_node_is_restarted_when_asked(tmp_path):
     FlakySink.lives, FlakySink.received = 0, []
-    graph = build_graph({"launch": {"name": "restart", "out": str(tmp_path), "stop_timeout_s": 2.0, "ready_timeout_s": 20.0},
-                         "nodes": {"tick": {"type": "test_launch:Ticker", "params": {"count": 6}},
+    # The source outlives the crash (200 frames through 4-frame socket buffers): frames in flight to the
+    # crashed instance are lost (seq gaps), the restarted one gets the rest of the stream.
+    graph = build_graph({"launch": {"name": "restart", "out": str(tmp_path), "stop_timeout_s": 2.0,
+                                    "ready_timeout_s": 20.0, "hwm": 4},
+                         "nodes": {"tick": {"type": "test_launch:Ticker", "params": {"count": 200}},
                                    "sink": {"type": "test_launch:FlakySink", "inputs": {"frames": "tick.frames"},
                                             "restart": "on-failure", "max_restarts": 2}}})
     code, summary = launch(graph, install_signal_handlers=False)
     assert code == 0 and summary["sink"]["restarts"] == 1 and FlakySink.lives == 2
     assert FlakySink.received and FlakySink.received == sorted(FlakySink.received)
-    assert FlakySink.received[-1] == 5  # the restarted sink gets the rest of the stream, to its end
+    assert FlakySink.received[-1] == 199  # the restarted sink gets the rest of the stream, to its end
+    assert summary["sink"]["status"]["seq_gaps"] == 0  # the new instance counts from its first frame
     assert json.loads((tmp_path / "run_summary.json").read_text())["sink"]["restarts"] == 1
 
 
 def test_a_failed_node_without_restart_stops_the_launch_with_an_error(tmp_path):
     FlakySink.lives, FlakySink.received = 0, []
-    graph = build_graph({"launch": {"name": "fail", "out": str(tmp_path), "stop_timeout_s": 2.0, "ready_timeout_s": 20.0},
+    graph = build_graph({"launch": {"name": "fail", "out": str(tmp_path), "stop_timeout_s": 2.0,
+                                    "ready_timeout_s": 20.0},
                          "nodes": {"tick": {"type": "test_launch:Ticker", "params": {"count": 1000}},
                                    "sink": {"type": "test_launch:FlakySink", "inputs": {"frames": "tick.frames"}}}})
     code, summary = launch(graph, install_signal_handlers=False)
@@ -226,7 +231,7 @@ params = {{ path = "{{out}}/copy" }}
     launcher = subprocess.Popen([sys.executable, "-m", "sonar_realism.cli", "launch", str(launch_file), "--out",
                                  str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        index = run / "copy" / "index.jsonl"
+        index = run / "copy" / "frames.jsonl"
         deadline = time.monotonic() + PROCESS_TIMEOUT_S
         while not (index.exists() and index.read_text().count("\n") > 20):  # wait for frames to flow
             assert launcher.poll() is None and time.monotonic() < deadline, launcher.stderr.read() if \

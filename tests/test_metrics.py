@@ -61,7 +61,8 @@ def test_a_known_blur_moves_the_spectral_distance_and_identical_sets_have_none()
     more = np.stack([cv2.GaussianBlur(im, (0, 0), 2.0) for im in images])
     reference = power_spectra(images)
     assert spectral_distance(reference, power_spectra(images.copy())) == 0.0
-    light, heavy = spectral_distance(reference, power_spectra(blurred)), spectral_distance(reference, power_spectra(more))
+    light = spectral_distance(reference, power_spectra(blurred))
+    heavy = spectral_distance(reference, power_spectra(more))
     assert 0.1 < light < heavy
     # Blur takes power from high frequencies: the radial spectrum's tail drops.
     assert power_spectra(blurred).radial[-3:].mean() < reference.radial[-3:].mean() - 0.5
@@ -138,3 +139,15 @@ def test_two_sample_test_near_chance_for_a_perfect_translator_and_high_for_raw_s
     separable = classifier_two_sample_test(real, raw, folds=2, seed=0)
     assert abs(indistinguishable.accuracy - 0.5) < 0.2
     assert separable.accuracy > 0.9 and separable.auc > 0.9
+
+
+def test_family_gaps_from_the_shared_statistics_are_zero_for_identical_sets():
+    from sonar_realism.evaluate.suite import family_gaps
+
+    rng = np.random.default_rng(0)
+    images = (rng.rayleigh(0.2, (6, 128, 128))).clip(0, 1).astype(np.float32)
+    same = family_gaps(images, images)
+    assert same is not None and max(same.values()) == 0.0
+    blurred = np.stack([cv2.GaussianBlur(im, (0, 0), 2.0) for im in images])
+    assert family_gaps(blurred, images)["grain"] > 1.0
+    assert family_gaps(images[:, :32, :32], images[:, :32, :32]) is None  # below the statistics' minimum size

@@ -217,6 +217,14 @@ def test_raw_stream_skips_garbage_and_other_messages_and_keeps_every_ping(tmp_pa
     assert not report.problems
 
 
+def test_raw_capture_that_starts_mid_message_is_read_from_the_first_ping_header(tmp_path):
+    data = REAL_RAW.read_bytes()
+    report = ReadReport()
+    frames = read_all(_write(data[100_000:], "joined_late.raw", tmp_path), report)
+    assert [f.seq for f in frames] == [415324, 415325]
+    assert report.skipped["garbage bytes"] == REAL_MESSAGE_BYTES - 100_000
+
+
 def test_log_skips_and_counts_other_items_and_messages(tmp_path):
     pings = [encode_ping(ping_frame(seq=i, seed=i)) for i in range(3)]
     data = log_bytes(log_item(b"settings", item_type=1), log_item(pings[0], time_s=10.0),

@@ -27,6 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output folder for diagnosis.json, report.md and figures")
     parser.add_argument("--resample", action="store_true",
                         help="put frames of other grids on the real set's most common grid instead of refusing")
+    parser.add_argument("--grid", help="resample both sets onto RANGESxBEAMS (e.g. 128x128, a model's grid)")
     parser.add_argument("--normalize", choices=("none", "max"), default="none",
                         help="'max' divides every frame by its maximum (for real sets exported that way)")
     parser.add_argument("--effects", default="", help="candidate effects, comma separated (default: the catalogue)")
@@ -48,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     config = from_dict(DiagnoseConfig, settings, where="diagnose config")
     sim = load_set(args.sim, args.max_frames)
     real = load_set(args.real, args.max_frames)
-    if args.resample:
-        grid = Counter(f.intensity.shape[-2:] for f in real).most_common(1)[0][0]
+    if args.grid or args.resample:
+        most_common = Counter(f.intensity.shape[-2:] for f in real).most_common(1)[0][0]
+        grid = parse_grid(args.grid) if args.grid else most_common
         sim, real = on_grid(sim, grid), on_grid(real, grid)
     diagnosis = diagnose(sim, real, config, progress=lambda message: print(message, file=sys.stderr))
     report = write_report(diagnosis, args.out)
@@ -70,6 +72,16 @@ def load_set(paths: Sequence[str], max_frames: int) -> list[SonarImage]:
         keep = np.linspace(0, len(frames) - 1, max_frames).round().astype(int)
         frames = [frames[i] for i in keep]
     return frames
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    try:
+        ranges, beams = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"--grid: expected RANGESxBEAMS such as 128x128, got {text!r}") from exc
+    if ranges < 1 or beams < 1:
+        raise ConfigError(f"--grid: need positive sizes, got {text!r}")
+    return ranges, beams
 
 
 def on_grid(frames: Sequence[SonarImage], grid: tuple[int, int]) -> list[SonarImage]:

@@ -34,10 +34,12 @@ def write_figures(diagnosis: Diagnosis, out: Path, prefix: str = "diag_") -> dic
             [*diagnosis.family_before.values(), *diagnosis.family_after.values()],
             out / f"{prefix}families.png", title="gap per statistic family: before, then after the selected set",
             ylabel="gap", size=(960, 420)),
-        "ranking": plots.bar_plot([r["name"] for r in ranked], [r["gap_after"] for r in ranked],
+        # an effect that makes things far worse would flatten every other bar: clip at twice the gap before
+        "ranking": plots.bar_plot([r["name"] for r in ranked],
+                                  [min(r["gap_after"], 2 * s["gap_before"]) for r in ranked],
                                   out / f"{prefix}ranking.png",
-                                  title=f"held-out gap after each effect alone (before: {s['gap_before']:.3g})",
-                                  ylabel="gap", size=(960, 420)),
+                                  title=f"held-out gap after each effect alone (before: {s['gap_before']:.3g}; "
+                                        "bars clipped at 2x)", ylabel="gap", size=(960, 420)),
         "curve": plots.line_plot({"held-out gap": (list(range(len(diagnosis.path))), [g for _, g in diagnosis.path])},
                                  out / f"{prefix}curve.png",
                                  title="gap as selected effects are added: " + " > ".join(n for n, _ in diagnosis.path),

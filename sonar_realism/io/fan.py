@@ -28,6 +28,7 @@ DEFAULT_PX_PER_M = 100.0
 _MIN_CONTENT_ROWS = 16
 _MIN_FOV_RAD = math.radians(3.0)
 _MAX_EDGE_RESIDUAL_PX = 2.0
+_ANGLE_STEP_DEG = 0.1
 
 
 @dataclass(frozen=True)
@@ -88,8 +89,17 @@ def detect_fan(image: np.ndarray) -> DetectedFan | None:
     outliers = int(0.0005 * distances.shape[0])
     near, far = np.partition(distances, [outliers, distances.shape[0] - 1 - outliers])[
         [outliers, distances.shape[0] - 1 - outliers]]
-    return DetectedFan(apex_x_px=apex_x, apex_y_px=float(apex_y), range_up=bool(range_up), left_rad=left_rad,
-                       right_rad=right_rad, min_range_px=float(near), max_range_px=float(far))
+    # Rounded to half a pixel and a tenth of a degree, below what the edge fit resolves: frames of one recording
+    # then share one geometry (and one cached remap table) instead of jittering with their content.
+    step_rad = math.radians(_ANGLE_STEP_DEG)
+    return DetectedFan(apex_x_px=_round_to(apex_x, 0.5), apex_y_px=_round_to(float(apex_y), 0.5),
+                       range_up=bool(range_up), left_rad=_round_to(left_rad, step_rad),
+                       right_rad=_round_to(right_rad, step_rad), min_range_px=_round_to(float(near), 0.5),
+                       max_range_px=_round_to(float(far), 0.5))
+
+
+def _round_to(value: float, step: float) -> float:
+    return round(value / step) * step
 
 
 def fan_image_to_frame(image: np.ndarray, path: Path, sidecar: ImageSidecar | None, sidecar_source: str,

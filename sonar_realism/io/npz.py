@@ -143,7 +143,8 @@ def write_npz(frames: Iterable[SonarImage], path: str | Path) -> int:
     stamps: list[int] = []
     seqs: list[int] = []
     metas: list[dict[str, Any]] = []
-    with tempfile.TemporaryFile(dir=path.parent if path.parent.exists() else None) as spool:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryFile(dir=path.parent) as spool:
         for index, frame in enumerate(frames):
             if first is None:
                 first = frame

@@ -368,13 +368,13 @@ def read_oculus(path: str | os.PathLike[str], report: ReadReport | None = None) 
         source = _PositionalFile(handle, str(path))
         head = source.read(0, 64)
         kind = sniff(head)
+        if head.startswith(SQLITE_MAGIC):
+            raise UnsupportedFormatError(source.name, "file magic", "V2 (SQLite) .oculus logs are unsupported; "
+                                         "export the recording as a V1 log")
         if kind == "oculus_log":
             yield from _read_log(source, report)
         elif kind == "oculus_raw" or _starts_mid_capture(source):
             yield from _read_raw(source, report)
-        elif head.startswith(SQLITE_MAGIC):
-            raise UnsupportedFormatError(source.name, "file magic", "V2 (SQLite) .oculus logs are unsupported; "
-                                         "export the recording as a V1 log")
         else:
             raise FormatError(source.name, "file magic", f"starts with {head[:4].hex(' ')}: neither a V1 .oculus log "
                               f"(44 33 22 11) nor a raw Oculus message stream (53 4f)")

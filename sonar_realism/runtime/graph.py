@@ -99,6 +99,7 @@ class ResolvedNode:
     wiring: Wiring
     restart: str
     max_restarts: int
+    producers: tuple[str, ...] = ()  # in-graph nodes this one takes frames from
 
     @property
     def is_source(self) -> bool:
@@ -207,8 +208,9 @@ def build_graph(data: dict[str, Any], out_dir: str | None = None) -> LaunchGraph
             eos_linger_s=settings.eos_linger_s,
             exit_with_parent=settings.mode == "process",
         )
+        producers = tuple(sorted({i.source.partition(".")[0] for i in inputs[name].values() if not i.external}))
         nodes[name] = ResolvedNode(name, spec.type, classes[name], params[name], wiring, spec.restart,
-                                   spec.max_restarts)
+                                   spec.max_restarts, producers)
     return LaunchGraph(settings, nodes, tuple(reversed(order)), endpoints.ipc_dir)
 
 
@@ -330,7 +332,7 @@ def _input_wiring(name: str, input_name: str, spec: InputSpec, outputs: dict[tup
     source_node, _, output = spec.source.partition(".")
     out = outputs[(source_node, output)]
     if spec.policy == "lossless":
-        return InputWiring(edges[(name, input_name)], out.topic, policy)
+        return InputWiring(edges[(name, input_name)], out.topic, policy, in_graph=True)
     # A producer bound to every interface is reached over loopback from this host.
     connect = out.pub_endpoint.replace("//0.0.0.0:", "//127.0.0.1:").replace("//*:", "//127.0.0.1:")
-    return InputWiring(connect, out.topic, policy)
+    return InputWiring(connect, out.topic, policy, in_graph=True)

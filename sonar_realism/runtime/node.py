@@ -84,6 +84,7 @@ class Node:
         self._started = time.monotonic()
         self._stop = threading.Event()
         self._wake = threading.Event()
+        self._producers_ended = threading.Event()
         self._outputs: dict[str, _Output] = {}
         self._status_socket: zmq.Socket | None = None
         self._status_subscribers = 0
@@ -123,6 +124,13 @@ class Node:
     @property
     def stop_requested(self) -> bool:
         return self._stop.is_set()
+
+    def producers_finished(self) -> None:
+        """The launcher's word that every in-graph producer has exited: once such an input's socket is
+        empty, nothing more can come, so it counts as ended even if its end of stream was lost (a
+        restarted node misses the one that was in flight when it crashed). Thread- and signal-safe."""
+        self._producers_ended.set()
+        self._wake.set()
 
     def request_stop(self) -> None:
         """Ask the loop to end (thread- and signal-safe); the node still finishes and sends end of stream."""
@@ -367,10 +375,16 @@ class Node:
                 if not poller.sockets:
                     next(iter(self.queues.values())).wait_for_room(_TICK_S)
                     continue
-                for sock, _ in poller.poll(_TICK_S * 1000):
-                    input_name, w = sockets[sock]
-                    self._drain(sock, input_name, w)
-                    if self.queues[input_name].ended:
+                readable = dict(poller.poll(_TICK_S * 1000))
+                for sock, (input_name, w) in list(sockets.items()):
+                    queue = self.queues[input_name]
+                    if sock in readable:
+                        self._drain(sock, input_name, w)
+                    elif (w.in_graph and self._producers_ended.is_set() and queue.has_room()
+                          and not sock.poll(0)):
+                        queue.put(EndOfStream("producers ended"))
+                        self._wake.set()
+                    if queue.ended:
                         sock.close(linger=0)  # hanging up tells an XPUB producer we got end of stream
                         del sockets[sock]
         finally:

@@ -37,11 +37,16 @@ def main(argv: list[str]) -> int:
 
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
+    # SIGUSR1 from the launcher: every in-graph producer of this node has exited (see Node.producers_finished).
+    signal.signal(signal.SIGUSR1, lambda *_: node.producers_finished())
     try:
         node.run()
     except Exception:
         logging.getLogger(__name__).exception("node %s failed", spec["name"])
         return 1
+    finally:
+        # A late notice while the interpreter shuts down (handlers reset to default) must not kill us.
+        signal.signal(signal.SIGUSR1, signal.SIG_IGN)
     return 0
 
 

@@ -55,6 +55,9 @@ class ThreadWorker:
     def interrupt(self) -> None:
         self.instance.request_stop()
 
+    def producers_finished(self) -> None:
+        self.instance.producers_finished()
+
     def terminate(self) -> None:
         self.instance.request_stop()
 
@@ -102,6 +105,9 @@ class ProcessWorker:
     def interrupt(self) -> None:
         self._signal(signal.SIGINT)
 
+    def producers_finished(self) -> None:
+        self._signal(signal.SIGUSR1)
+
     def terminate(self) -> None:
         self._signal(signal.SIGTERM)
 
@@ -124,6 +130,7 @@ class Supervisor:
         self.run_dir = run_dir
         self.context = context or zmq.Context.instance()
         self.worker_class = ThreadWorker if graph.settings.mode == "inproc" else ProcessWorker
+        self._told_producers_ended: set[int] = set()  # ids of workers already told
         self.workers: dict[str, ThreadWorker | ProcessWorker] = {}
         self.restarts: dict[str, int] = dict.fromkeys(graph.nodes, 0)
         self.exit_codes: dict[str, int] = {}
@@ -188,7 +195,17 @@ class Supervisor:
                     return True
             if running == 0:
                 return False
+            self._tell_consumers_whose_producers_ended()
         return False
+
+    def _tell_consumers_whose_producers_ended(self) -> None:
+        """Only a restarted node can have lost its end of stream (in flight when it crashed); tell it."""
+        for name, worker in self.workers.items():
+            node = self.graph.nodes[name]
+            if (node.producers and self.restarts[name] and id(worker) not in self._told_producers_ended
+                    and name not in self.exit_codes and all(p in self.exit_codes for p in node.producers)):
+                self._told_producers_ended.add(id(worker))
+                worker.producers_finished()
 
     def _shutdown(self) -> None:
         """Sources first: their end of stream lets the rest drain by itself; then escalate, in order."""

@@ -26,6 +26,7 @@ class InputWiring:
     endpoint: str
     topic: str
     policy: InputPolicy = field(default_factory=InputPolicy)
+    in_graph: bool = False  # produced by a node of the same launch (the launcher reports when it has ended)
 
     @property
     def socket_kind(self) -> str:
@@ -61,7 +62,7 @@ class Wiring:
     @classmethod
     def from_json(cls, text: str) -> Wiring:
         data: dict[str, Any] = json.loads(text)
-        inputs = {name: InputWiring(endpoint=w["endpoint"], topic=w["topic"], policy=InputPolicy(**w["policy"]))
+        inputs = {name: InputWiring(**{**w, "policy": InputPolicy(**w["policy"])})
                   for name, w in data.pop("inputs").items()}
         outputs = {name: OutputWiring(**{**w, "push_endpoints": tuple(w["push_endpoints"])})
                    for name, w in data.pop("outputs").items()}
