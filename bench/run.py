@@ -21,6 +21,7 @@ ORDER = ["oculus", "wire", "geometry", "sim", "model", "pipeline", "diagnose"]
 def load(name: str):
     spec = importlib.util.spec_from_file_location(f"bench_{name}", HERE / f"bench_{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
