@@ -9,6 +9,6 @@ for scene in constructed organic; do
   sonar-realism simulate --scene "$scene" --n 200 --seed 11 --out "runs/sim_train/$scene" --quiet
 done
 sonar-realism train --real "$REAL" --sim runs/sim_train --out runs/cdfcvae_default \
-  --config scripts/cdfcvae_default.json --epochs1 20 --epochs2 12 "$@"
+  --config scripts/cdfcvae_default.json --epochs1 14 --epochs2 6 "$@"
 cp runs/cdfcvae_default/model.safetensors sonar_realism/assets/cdfcvae_default.safetensors
 cp runs/cdfcvae_default/model.json sonar_realism/assets/cdfcvae_default.json
