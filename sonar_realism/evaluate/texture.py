@@ -25,6 +25,11 @@ N_RANGE_BANDS = 4
 HISTOGRAM_BINS = 64
 LOCAL_MEAN_SIGMA = 4.0  # grid cells: larger than the speckle grain, smaller than objects
 K_SHAPE_CAP = 100.0  # nu above this is indistinguishable from Rayleigh with tens of thousands of cells
+# Cells whose local mean is below this fraction of the frame's 99th percentile hold no speckle to measure (a clean
+# simulator's empty water column, a shadow): their ratios are leakage from bright neighbours, not texture.
+SPECKLE_FLOOR_FRACTION = 0.02
+# A band where fewer cells than this fraction hold speckle has no statistics (NaN), rather than a few edge cells'.
+SPECKLE_MIN_COVERAGE = 0.05
 
 
 def _check(images: np.ndarray) -> np.ndarray:
@@ -122,13 +127,14 @@ def speckle_statistics(images: np.ndarray, n_bands: int = N_RANGE_BANDS) -> list
     normalised = []
     for image in images.astype(np.float32):
         local = cv2.GaussianBlur(image, (0, 0), LOCAL_MEAN_SIGMA)
-        normalised.append(np.where(local > 1e-3, image / np.maximum(local, 1e-3), np.nan))
+        floor = max(1e-3, SPECKLE_FLOOR_FRACTION * float(np.percentile(image, 99)))
+        normalised.append(np.where(local > floor, image / np.maximum(local, floor), np.nan))
     stack = np.stack(normalised)
     bands = []
     for rows in np.array_split(np.arange(images.shape[1]), n_bands):
         amplitude = stack[:, rows].ravel()
         amplitude = amplitude[np.isfinite(amplitude)]
-        if amplitude.size < 2 or amplitude.mean() <= 0:
+        if amplitude.size < max(2, SPECKLE_MIN_COVERAGE * stack[:, rows].size) or amplitude.mean() <= 0:
             bands.append(SpeckleBand(float("nan"), float("nan"), float("nan")))
             continue
         contrast = float(amplitude.std() / amplitude.mean())
