@@ -8,8 +8,15 @@ import pytest
 
 from sonar_realism.cli import main
 from sonar_realism.diagnose.diagnosis import DiagnoseConfig, diagnose, split_indices
-from sonar_realism.diagnose.gap import FeatureScale, bootstrap_interval, classifier_auc, family_gaps, gap
-from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_cells, where_features
+from sonar_realism.diagnose.gap import (
+    FeatureScale,
+    bootstrap_gain,
+    bootstrap_interval,
+    classifier_auc,
+    family_gaps,
+    gap,
+)
+from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import SearchConfig
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import frame_statistics
@@ -57,6 +64,31 @@ def test_where_map_points_at_the_cell_that_differs():
     hottest = hot_cells(maps.cells, uniform_ranges(128, 10.0), uniform_azimuths(128, 2.0), top=1)[0]
     assert (hottest["range_cell"], hottest["bearing_cell"]) == (2, 6)
     assert 2.5 <= hottest["range_m"][0] <= hottest["range_m"][1] <= 3.8
+
+
+def test_paired_gain_is_significant_only_for_a_real_improvement():
+    target = frame_statistics(np.sqrt(speckled(12, 5)))
+    raw = speckled(12, 6)
+    before, better = frame_statistics(raw), frame_statistics(np.sqrt(raw))
+    scale = FeatureScale.pooled(before, target)
+    gain, lower = bootstrap_gain(before, better, target, scale, n_boot=50)
+    assert gain > 0.5 and lower > 0.0
+    gain, lower = bootstrap_gain(before, before, target, scale, n_boot=50)
+    assert gain == 0.0 and lower <= 0.0
+
+
+def test_where_maps_point_at_a_narrow_band_by_range_bin():
+    real = speckled(8, 7)
+    real[:, 80:84, :] = np.clip(real[:, 80:84, :] + 0.5, 0, 1)  # a bright band 4 bins wide, rows 80-83 of 128
+    sim = speckled(8, 8)
+    config = WhereConfig()
+    wa, wb = where_features(sim, config), where_features(real, config)
+    sa, sb = frame_statistics(sim), frame_statistics(real)
+    maps = gap_maps(wa, wb, FeatureScale.pooled(wa, wb), sa, sb, FeatureScale.pooled(sa, sb), config)
+    ranges = uniform_ranges(128, 10.0)
+    top = hot_bins(maps.range_bins, ranges, "range_m", top=1)[0]
+    assert top["bin"] == 20  # 32 bins of 4 rows: rows 80-83
+    assert top["range_m"][0] <= ranges[81] <= top["range_m"][1]
 
 
 def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():

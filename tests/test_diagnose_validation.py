@@ -63,6 +63,15 @@ def test_withheld_lens_reflection_is_left_as_residual_at_its_range():
         assert cell["range_m"][0] - 0.7 <= band_m <= cell["range_m"][1] + 0.7
 
 
+def test_no_effect_is_selected_when_nothing_was_hidden():
+    # Sim and "real" alternate along one trajectory and nothing is hidden: whatever the fits find is sampling
+    # noise, which the significance test must refuse.
+    frames = [frame for frame, _ in simulate(n=32, seed=9, sensor=SENSOR)]
+    blind, diagnosis = blind_run(frames[0::2], frames[1::2], {}, CONFIG)
+    assert blind.selected == []
+    assert "selection_stopped" in diagnosis.summary
+
+
 def test_make_real_rejects_effects_it_cannot_make(sets):
     with pytest.raises(ConfigError, match="no alternative implementation"):
         make_real(sets[0][:1], {"sparkle": {}}, seed=0)

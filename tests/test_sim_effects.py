@@ -158,6 +158,17 @@ def test_beam_sidelobe_level_sets_the_first_sidelobe() -> None:
     assert 10 * math.log10(sidelobe / right[0]) == pytest.approx(-25.0, abs=2.0)
 
 
+def test_wide_beam_sidelobes_leave_no_nan_beside_dark_cells() -> None:
+    # A mainlobe of several beams on a frame of bright points in black water: rounding in the wide filter gives
+    # tiny negative powers next to the zeros, which must not become NaN amplitudes.
+    image = np.zeros((N_RANGES, 256), np.float32)
+    image[::7, ::5] = np.random.default_rng(0).uniform(0.2, 1.0, image[::7, ::5].shape)
+    frame = make_frame(image)
+    for mainlobe_deg in (0.6, 3.0, 5.0):
+        out = BeamSidelobes(mainlobe_deg=mainlobe_deg).apply(image, frame, rng())
+        assert np.isfinite(out).all() and (out >= 0).all()
+
+
 def test_range_blur_spreads_only_along_range() -> None:
     image = point_image()
     out = RangeBlur(resolution_m=0.2, sidelobe_db=-20.0).apply(image, make_frame(image), rng())

@@ -21,6 +21,7 @@ from sonar_realism.diagnose.where import (
     band_names,
     concentration,
     gap_maps,
+    hot_bins,
     hot_cells,
     level_names,
     where_features,
@@ -46,7 +47,9 @@ class DiagnoseConfig:
     """holdout_fraction: share of each set kept for measuring; fit_frames: sim frames the parameter search uses;
     eval_frames / real_frames: cap on held-out sim / real frames per measurement (cost grows with them);
     max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
-    gap before to be selected); effects: the candidates (empty = the whole catalogue); normalize: "max" divides
+    gap before to be selected); significance: one-sided level of the paired bootstrap test an effect's gain must
+    pass to be selected (0 = no test); backfit: refit the chosen effects around each new candidate;
+    effects: the candidates (empty = the whole catalogue); normalize: "max" divides
     every frame by its maximum before measuring (for real sets exported that way)."""
 
     holdout_fraction: float = 0.5
@@ -56,6 +59,8 @@ class DiagnoseConfig:
     max_effects: int = 4
     min_gain: float = 0.05
     candidates_per_step: int = 3
+    significance: float = 0.95
+    backfit: bool = True
     effects: tuple[str, ...] = ()
     normalize: Literal["none", "max"] = "none"
     bootstrap: int = 200
@@ -71,6 +76,8 @@ class DiagnoseConfig:
             raise ConfigError(f"diagnose: fit_frames, eval_frames and real_frames must be >= {MIN_FRAMES_PER_SPLIT}")
         if self.max_effects < 0 or self.candidates_per_step < 1 or not 0.0 <= self.min_gain < 1.0:
             raise ConfigError("diagnose: max_effects >= 0, candidates_per_step >= 1, 0 <= min_gain < 1")
+        if not 0.0 <= self.significance < 1.0:
+            raise ConfigError(f"diagnose.significance: must be in [0, 1), got {self.significance}")
         if self.normalize not in ("none", "max"):
             raise ConfigError(f"diagnose.normalize: 'none' or 'max', got {self.normalize!r}")
         check_effect_names(self.effects)
@@ -154,11 +161,15 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         images = corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize)
         return images, frame_statistics(images, stats_cfg)
 
-    def holdout_gap(effects: Sequence[Effect]) -> float:
+    def holdout(effects: Sequence[Effect]) -> tuple[float, Stats | None]:
         try:
-            return headline(family_gaps(holdout_stats(effects)[1], real_hold_stats, scale))
+            stats = holdout_stats(effects)[1]
         except FrameError:  # an effect that produces invalid frames explains nothing
-            return math.inf
+            return math.inf, None
+        return headline(family_gaps(stats, real_hold_stats, scale)), stats
+
+    def holdout_gap(effects: Sequence[Effect]) -> float:
+        return holdout(effects)[0]
 
     families_before = family_gaps(raw_stats, real_hold_stats, scale)
     gap_before = headline(families_before)
@@ -169,13 +180,16 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     where_real = where_features(real_hold, config.where)
     where_raw = where_features(raw_eval, config.where)
     where_scale = FeatureScale.pooled(where_raw, where_real)
-    maps_before = gap_maps(where_raw, where_real, where_scale, raw_stats, real_hold_stats, scale, config.where)
+    maps_before = gap_maps(where_raw, where_real, where_scale, raw_stats, real_hold_stats, scale, config.where,
+                           stats_cfg.profile_bins)
 
     ranked_pairs = rank_effects(names, fit_frames, real_fit_stats, holdout_gap, scale, config.search, stats_cfg,
                                 config.normalize, say)
-    selection = greedy_select(ranked_pairs, gap_before, fit_frames, real_fit_stats, holdout_gap, scale,
+    selection = greedy_select(ranked_pairs, gap_before, fit_frames, real_fit_stats, holdout, scale,
                               config.search, stats_cfg, config.max_effects, config.min_gain,
-                              config.candidates_per_step, config.normalize, say)
+                              config.candidates_per_step, config.normalize, say, target=real_hold_stats,
+                              significance=config.significance, bootstrap=config.bootstrap,
+                              backfit=config.backfit, seed=config.seed)
 
     after_images, after_stats = holdout_stats(selection.effects)
     families_after = family_gaps(after_stats, real_hold_stats, scale)
@@ -183,13 +197,12 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     ci_after = bootstrap_interval(after_stats, real_hold_stats, scale, config.bootstrap, seed=config.seed)
     auc_after = classifier_auc(after_stats, real_hold_stats, seed=config.seed)
     maps_after = gap_maps(where_features(after_images, config.where), where_real, where_scale, after_stats,
-                          real_hold_stats, scale, config.where)
+                          real_hold_stats, scale, config.where, stats_cfg.profile_bins)
 
     # What stays of the original gap: where it was and still is. Where the correction itself made things worse
     # is reported apart ("worsened_cells"), so a side effect of a fitted effect is not mistaken for the residual.
-    unexplained = GapMaps(*(np.minimum(a, b) for a, b in zip(
-        (maps_before.cells, maps_before.levels, maps_before.bands_range, maps_before.bands_beam),
-        (maps_after.cells, maps_after.levels, maps_after.bands_range, maps_after.bands_beam), strict=True)))
+    unexplained = GapMaps(*(np.minimum(a, b) for a, b in zip(maps_before.arrays(), maps_after.arrays(),
+                                                             strict=True)))
     # Real frames read without geometry (plain PNGs) carry placeholder axes; the sim frames are on the same grid.
     reference = real[real_hold_idx[0]]
     if reference.meta.get("geometry_assumed"):
@@ -252,6 +265,8 @@ def _top_families(families: dict[str, float]) -> list[dict[str, float | str]]:
 def _where_summary(maps: GapMaps, reference: SonarImage, config: DiagnoseConfig) -> dict[str, Any]:
     n_bands = config.statistics.n_bands
     return {"cells": hot_cells(maps.cells, reference.ranges_m, reference.azimuths_rad),
+            "range_bins": hot_bins(maps.range_bins, reference.ranges_m, "range_m"),
+            "bearing_bins": hot_bins(maps.bearing_bins, np.degrees(reference.azimuths_rad), "bearing_deg"),
             "levels": concentration(maps.levels, level_names()),
             "bands_range": concentration(maps.bands_range, band_names(reference.n_ranges, n_bands)),
             "bands_beam": concentration(maps.bands_beam, band_names(reference.n_beams, n_bands))}

@@ -122,7 +122,12 @@ def _where_lines(where: dict[str, Any]) -> list[str]:
     levels = ", ".join(f"{lv['name']} counts ({100 * lv['share']:.0f}%)" for lv in where["levels"])
     bands_r = ", ".join(f"{b['name']} ({100 * b['share']:.0f}%)" for b in where["bands_range"])
     bands_b = ", ".join(f"{b['name']} ({100 * b['share']:.0f}%)" for b in where["bands_beam"])
+    ranges = "; ".join(f"{b['range_m'][0]:.3g}-{b['range_m'][1]:.3g} m ({100 * b['share']:.0f}%)"
+                       for b in where.get("range_bins", []))
+    bearings = "; ".join(f"{b['bearing_deg'][0]:.3g} to {b['bearing_deg'][1]:.3g} deg ({100 * b['share']:.0f}%)"
+                         for b in where.get("bearing_bins", []))
     return [f"- Cells: {cells or 'none stands out'}",
+            f"- Mean brightness, range bins: {ranges or 'none stands out'}; bearing bins: {bearings or 'none'}",
             f"- Intensity levels: {levels}",
             f"- Spatial periods along range: {bands_r}; across beams: {bands_b}"]
 

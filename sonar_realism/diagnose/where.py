@@ -88,16 +88,23 @@ def level_features(images: np.ndarray, patch: int) -> np.ndarray:
 @dataclass(frozen=True)
 class GapMaps:
     """cells: [range_cells, bearing_cells] gap per cell; levels: [levels] gap per intensity level;
-    bands_range / bands_beam: [n_bands] gap per octave band (highest frequencies first)."""
+    bands_range / bands_beam: [n_bands] gap per octave band (highest frequencies first); range_bins /
+    bearing_bins: gap of the mean brightness per bin of the range and bearing profiles (finer than the cells:
+    a narrow band at one range shows up in one bin instead of being averaged into a cell)."""
 
     cells: np.ndarray
     levels: np.ndarray
     bands_range: np.ndarray
     bands_beam: np.ndarray
+    range_bins: np.ndarray
+    bearing_bins: np.ndarray
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return (self.cells, self.levels, self.bands_range, self.bands_beam, self.range_bins, self.bearing_bins)
 
 
 def gap_maps(where_a: Stats, where_b: Stats, where_scale: FeatureScale, stats_a: Stats, stats_b: Stats,
-             stats_scale: FeatureScale, config: WhereConfig = WhereConfig()) -> GapMaps:
+             stats_scale: FeatureScale, config: WhereConfig = WhereConfig(), profile_bins: int = 32) -> GapMaps:
     local = feature_gaps(where_a, where_b, where_scale)
     cells = local["cells"].reshape(config.range_cells, config.bearing_cells, len(CELL_FEATURES)).mean(axis=2)
     n_levels = len(LEVEL_EDGES) - 1
@@ -105,7 +112,12 @@ def gap_maps(where_a: Stats, where_b: Stats, where_scale: FeatureScale, stats_a:
     spectrum = feature_gaps({"spectrum": stats_a["spectrum"]}, {"spectrum": stats_b["spectrum"]},
                             FeatureScale({"spectrum": stats_scale.spread["spectrum"]}))["spectrum"]
     half = spectrum.shape[0] // 2
-    return GapMaps(cells=cells, levels=levels, bands_range=spectrum[:half], bands_beam=spectrum[half:])
+    families = ("range_profile", "bearing_profile")
+    profiles = feature_gaps({f: stats_a[f] for f in families}, {f: stats_b[f] for f in families},
+                            FeatureScale({f: stats_scale.spread[f] for f in families}))
+    return GapMaps(cells=cells, levels=levels, bands_range=spectrum[:half], bands_beam=spectrum[half:],
+                   range_bins=profiles["range_profile"][:profile_bins],
+                   bearing_bins=profiles["bearing_profile"][:profile_bins])
 
 
 def level_names() -> list[str]:
@@ -146,6 +158,22 @@ def hot_cells(cells: np.ndarray, ranges_m: np.ndarray, azimuths_rad: np.ndarray,
                     "gap": float(cells[i, j]), "share": float(positive[i, j] / total)})
         if covered / total >= share:
             break
+    return out
+
+
+def hot_bins(values: np.ndarray, axis: np.ndarray, unit: str, top: int = 3) -> list[dict[str, object]]:
+    """The profile bins holding the largest gap (up to `top`), as intervals of `axis` (ranges in m or bearings in
+    degrees) with their share of the positive total."""
+    positive = np.clip(values, 0.0, None)
+    total = float(positive.sum())
+    if total <= 0.0:
+        return []
+    edges = np.linspace(0, len(axis), len(values) + 1).round().astype(int)
+    out: list[dict[str, object]] = []
+    for k in np.argsort(positive)[::-1][:top]:
+        lo, hi = axis[edges[k]], axis[max(edges[k + 1] - 1, edges[k])]
+        out.append({"bin": int(k), unit: [round(float(lo), 3), round(float(hi), 3)], "gap": float(values[k]),
+                    "share": float(positive[k] / total)})
     return out
 
 

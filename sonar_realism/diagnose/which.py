@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sonar_realism.diagnose.gap import FeatureScale, Stats, gap
+from sonar_realism.diagnose.gap import FeatureScale, Stats, bootstrap_gain, gap
 from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
@@ -66,14 +66,19 @@ def normalize_image(image: np.ndarray, how: str) -> np.ndarray:
 
 def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: FeatureScale,
                base: Sequence[Effect] = (), start: Effect | None = None, search: SearchConfig = SearchConfig(),
-               statistics: StatisticsConfig | None = None, normalize: str = "none") -> Fit:
+               statistics: StatisticsConfig | None = None, normalize: str = "none",
+               alternatives: Sequence[Effect] = ()) -> Fit:
     """Parameters of effect `name` that, applied to `frames` after/with the `base` effects, bring their
-    statistics closest to `target`."""
+    statistics closest to `target`. The search starts from `start` (default: the catalogue's values) or from
+    whichever of `alternatives` fits better there."""
     statistics = statistics or StatisticsConfig()
     cls = EFFECTS[name]
     bounds = dict(cls.PARAM_BOUNDS)
-    current = start if start is not None else make_effect(name)
-    current = dataclasses.replace(current, **{k: float(np.clip(getattr(current, k), *bounds[k])) for k in bounds})
+
+    def clipped(effect: Effect) -> Effect:
+        return dataclasses.replace(effect, **{k: float(np.clip(getattr(effect, k), *bounds[k])) for k in bounds})
+
+    current = clipped(start if start is not None else make_effect(name))
 
     evaluations = 0
     cache: dict[tuple, float] = {}
@@ -91,6 +96,11 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
         return cache[key]
 
     best = objective(current)
+    for other in alternatives:
+        other = clipped(other)
+        score = objective(other)
+        if score < best:
+            best, current = score, other
     for round_index in range(search.rounds):
         for param, (low, high) in bounds.items():
             log_scale = low > 0 and high / low >= 20  # parameters spanning decades are searched on a log grid
@@ -145,37 +155,73 @@ def rank_effects(names: Sequence[str], fit_frames: Sequence[SonarImage], fit_tar
 
 
 def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: float, fit_frames: Sequence[SonarImage],
-                  fit_target: Stats, holdout_gap: Callable[[Sequence[Effect]], float], scale: FeatureScale,
-                  search: SearchConfig, statistics: StatisticsConfig, max_effects: int, min_gain: float,
-                  candidates_per_step: int, normalize: str = "none",
-                  progress: Callable[[str], None] | None = None) -> Selection:
-    """Forward selection: at each step refit the best few remaining effects on top of the chosen set, keep the one
-    that lowers the held-out gap most, and stop when none lowers it by at least `min_gain` x gap_before."""
+                  fit_target: Stats, holdout: Callable[[Sequence[Effect]], tuple[float, Stats | None]],
+                  scale: FeatureScale, search: SearchConfig, statistics: StatisticsConfig, max_effects: int,
+                  min_gain: float, candidates_per_step: int, normalize: str = "none",
+                  progress: Callable[[str], None] | None = None, target: Stats | None = None,
+                  significance: float = 0.95, bootstrap: int = 200, backfit: bool = True,
+                  seed: int = 0) -> Selection:
+    """Forward selection on the held-out split.
+
+    Step 1 takes the best effect of the solo ranking. Every later step tries *every* remaining effect: with
+    `backfit`, the chosen effects are first refitted around its solo fit (their earlier fit may have compensated
+    for the effect that was still missing), then it is refitted on top of them (one search round each, on the fit
+    split, from the previous fit or the catalogue's default, whichever fits better); the `candidates_per_step`
+    sets that fit best are judged on held-out frames. An effect that only helps together with another (speckle
+    under a gamma curve) is useless alone and ranks low in the solo ranking, so a shortlist taken from that
+    ranking would never reconsider it. The shortlisted set lowering the held-out gap most is kept if the gain is
+    at least `min_gain` x gap_before and, with `target` given (the held-out real statistics), significant: the
+    one-sided `significance` lower bound of a paired bootstrap of the gain is above 0, so an effect that merely
+    nudges the statistics within their sampling noise is left out and the gap stays residual.
+    """
     chosen: list[Effect] = []
     path_gaps = [gap_before]
-    current = gap_before
+    current, current_stats = holdout([])
+    current = gap_before if not math.isfinite(current) else current
     remaining = list(ranked)
+    one_round = dataclasses.replace(search, rounds=1)
     stopped = f"reached max_effects={max_effects}"
+
+    def refit(name: str, base: Sequence[Effect], start: Effect) -> Fit:
+        # the catalogue's default is the other start: a fit made while another effect was missing may sit in a
+        # compromise (a gamma curve bent to mimic speckle) from which one coordinate round does not come back
+        return fit_effect(name, fit_frames, fit_target, scale, base=base, start=start, search=one_round,
+                          statistics=statistics, normalize=normalize, alternatives=[make_effect(name)])
+
     while remaining and len(chosen) < max_effects:
         if current <= min_gain * gap_before:
             stopped = f"the gap left is below {min_gain:.0%} of the gap before (nothing left to explain)"
             break
+        if chosen:
+            screened = []
+            for info, solo in remaining:
+                base = list(chosen)
+                if backfit:  # the chosen effects around the candidate first, then the candidate on top of them
+                    for i, previous in enumerate(base):
+                        base[i] = refit(previous.name, [*base[:i], *base[i + 1:], solo], previous).effect
+                fit = refit(info.name, base, solo)
+                screened.append((fit.fit_gap, base, fit.effect, info))
+            shortlist = sorted(screened, key=lambda t: t[0])[:candidates_per_step]
+        else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
+            shortlist = [(remaining[0][0].fit_gap, [], remaining[0][1], remaining[0][0])]
         trials = []
-        for info, solo in remaining[:candidates_per_step]:
-            if chosen:
-                refit = fit_effect(info.name, fit_frames, fit_target, scale, base=chosen, start=solo,
-                                   search=dataclasses.replace(search, rounds=1), statistics=statistics,
-                                   normalize=normalize).effect
-            else:
-                refit = solo
-            trials.append((holdout_gap([*chosen, refit]), refit, info))
-        best_gap, best_effect, best_info = min(trials, key=lambda t: t[0])
+        for _, base, effect, info in shortlist:
+            gap_value, stats = holdout([*base, effect])
+            trials.append((gap_value, base, effect, info, stats))
+        best_gap, best_base, best_effect, best_info, best_stats = min(trials, key=lambda t: t[0])
         if current - best_gap < min_gain * max(gap_before, 1e-12):
             stopped = f"no remaining effect lowers the held-out gap by {min_gain:.0%} of the gap before"
             break
-        chosen.append(best_effect)
+        if target is not None and current_stats is not None and best_stats is not None and significance > 0:
+            gain, lower = bootstrap_gain(current_stats, best_stats, target, scale, bootstrap, significance,
+                                         seed=seed + len(chosen))
+            if lower <= 0.0:
+                stopped = (f"the best remaining effect ({best_info.name}) lowers the held-out gap by {gain:.3g}, "
+                           f"not significantly (one-sided {significance:.0%} lower bound {lower:.3g} <= 0)")
+                break
+        chosen = [*best_base, best_effect]
         path_gaps.append(best_gap)
-        current = best_gap
+        current, current_stats = best_gap, best_stats
         remaining = [pair for pair in remaining if pair[0].name != best_info.name]
         if progress:
             progress(f"selected {best_info.name}: held-out gap {best_gap:.4g}")

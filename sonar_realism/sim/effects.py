@@ -273,7 +273,8 @@ class BeamSidelobes(Effect):
         smeared = _filter_beams(power, self.kernel(frame))
         floor = np.float32(10 ** (self.crosstalk_db / 10))
         smeared += floor * power.mean(axis=-1, keepdims=True)
-        return np.sqrt(smeared)
+        # a wide kernel's rounding leaves tiny negative powers beside dark cells: clip them, or sqrt makes NaN
+        return np.sqrt(np.maximum(smeared, 0.0, out=smeared))
 
 
 @dataclass(frozen=True)
