@@ -47,6 +47,10 @@ def main(argv: list[str]) -> int:
     finally:
         # A late notice while the interpreter shuts down (handlers reset to default) must not kill us.
         signal.signal(signal.SIGUSR1, signal.SIG_IGN)
+        # Zero-copy sends still lingering on closed sockets point into our arrays: wait for libzmq to finish
+        # with them (up to each socket's linger) before the interpreter frees the arrays, or its I/O thread
+        # reads freed memory and aborts ("Bad address (src/tcp.cpp)").
+        node.context.destroy(linger=0)
     return 0
 
 
