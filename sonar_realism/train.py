@@ -455,6 +455,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     started = time.monotonic()
     result = fit(cfg, args.real, args.sim, args.out, device=args.device, resume=args.resume)
-    print(f"trained in {time.monotonic() - started:.0f} s; checkpoint {Path(args.out) / 'model.safetensors'}",
-          file=sys.stderr)
+    if int(os.environ.get("RANK", 0)) == 0:  # under torchrun every rank gets here; one line is enough
+        print(f"trained in {time.monotonic() - started:.0f} s; checkpoint {Path(args.out) / 'model.safetensors'}",
+              file=sys.stderr)
     return 0 if result["finished"] else 1
