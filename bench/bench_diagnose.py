@@ -63,14 +63,14 @@ def accuracy_suite(n_frames: int, config: DiagnoseConfig, sensor: SensorConfig, 
                "residual_bearing_bins": s["residual"]["bearing_bins"],
                "wall_s": time.perf_counter() - started}
         if kind == "withheld":
-            row.update(withheld_place(case[0], row, sim[0]))
+            row.update(withheld_place(case[0], row, sim[0], config))
         rows.append(row)
         log(f"{row['case']:40s} top1={blind.top1:18s} selected={','.join(blind.selected):40s} "
             f"closed={100 * blind.gap_closed:5.1f}% err={blind.param_error} {row['wall_s']:.0f}s")
     return rows
 
 
-def withheld_place(name: str, row: dict, frame) -> dict:
+def withheld_place(name: str, row: dict, frame, config: DiagnoseConfig) -> dict:
     """Where a withheld effect's residual should be, and whether the diagnosis put it there.
     lens_reflection: a band at a fixed range, so the top residual range bin must hold the band's centre (within
     one bin); beam_gain_ripple: vignetting darkens the fan's edges most, so the top residual cell must lie in the
@@ -79,11 +79,11 @@ def withheld_place(name: str, row: dict, frame) -> dict:
         r = frame.ranges_m
         centre = float(r[0] + WITHHELD_PARAMS[name]["at_fraction"] * (r[-1] - r[0]))
         bins = row["residual_range_bins"]
-        width = (r[-1] - r[0]) / 32
+        width = (r[-1] - r[0]) / config.statistics.profile_bins
         hit = bool(bins) and bool(bins[0]["range_m"][0] - width <= centre <= bins[0]["range_m"][1] + width)
         return {"expected_place": f"range {centre:.2f} m (top residual range bin)", "in_place": hit}
     cells = row["residual_cells"]
-    hit = bool(cells) and cells[0]["bearing_cell"] in (0, 7)
+    hit = bool(cells) and cells[0]["bearing_cell"] in (0, config.where.bearing_cells - 1)
     return {"expected_place": "fan edges (top residual cell in the first or last bearing cell)", "in_place": hit}
 
 

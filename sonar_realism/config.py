@@ -100,3 +100,14 @@ def _convert(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a string, got {value!r}")
         return value
     return value
+
+
+def parse_grid(text: str, what: str = "--grid") -> tuple[int, int]:
+    """"128x128" -> (n_ranges, n_beams): the one spelling of a polar grid on every command line."""
+    try:
+        ranges, beams = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ConfigError(f"{what}: expected RANGESxBEAMS such as 128x128, got {text!r}") from exc
+    if ranges < 1 or beams < 1:
+        raise ConfigError(f"{what}: need positive sizes, got {text!r}")
+    return ranges, beams

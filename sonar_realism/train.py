@@ -34,7 +34,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from sonar_realism.config import from_dict, to_dict
+from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.datasets import GridFrames, Normalisation, batches, load_grid_frames, split_by_recording
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, PerceptualConfig, PerceptualLoss, save_checkpoint
@@ -401,14 +401,6 @@ def _progress(label: str, done: int, total: int, loss: float, elapsed: float) ->
 
 
 # --- CLI -----------------------------------------------------------------------------------------------------------
-
-def parse_grid(text: str) -> tuple[int, int]:
-    """"128x128" -> (n_ranges, n_beams)."""
-    try:
-        rows, cols = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise ConfigError(f"--grid: expected RANGESxBEAMS like 128x128, got {text!r}") from exc
-    return rows, cols
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from sonar_realism.config import from_dict, to_dict
+from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.datasets import load_grid_frames
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.models.cyclegan import (
@@ -33,14 +33,11 @@ from sonar_realism.models.cyclegan import (
 )
 
 
-def parse_grid(text: str) -> tuple[int, int]:
-    """"128x128" -> (128, 128) (rows = range bins, columns = beams); sides must be multiples of 4."""
-    try:
-        rows, cols = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise ConfigError(f"grid: expected ROWSxCOLS like 128x128, got {text!r}") from exc
+def cyclegan_grid(text: str) -> tuple[int, int]:
+    """A --grid the generator can take: sides multiples of 4 (two stride-2 levels) and >= 16."""
+    rows, cols = parse_grid(text)
     if rows < 16 or cols < 16 or rows % 4 or cols % 4:
-        raise ConfigError(f"grid: sides must be multiples of 4 and >= 16, got {text!r}")
+        raise ConfigError(f"--grid: sides must be multiples of 4 and >= 16, got {text!r}")
     return rows, cols
 
 
@@ -85,7 +82,7 @@ def train(args: argparse.Namespace) -> int:
     """Train (or resume) a CycleGAN sim -> real. See the `train` subcommand for the arguments."""
     if not args.sim:
         raise ConfigError("--sim: the CycleGAN needs simulated frames (it learns sim -> real)")
-    grid = parse_grid(args.grid)
+    grid = cyclegan_grid(args.grid)
     overrides = json.loads(Path(args.config).read_text()) if args.config else {}
     config = from_dict(CycleGANConfig, overrides, where=str(args.config or "config"))
     device = pick_device(args.device)

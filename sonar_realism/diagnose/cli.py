@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sonar_realism.config import from_dict
+from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.diagnose.diagnosis import DiagnoseConfig, diagnose
 from sonar_realism.diagnose.report import write_report
 from sonar_realism.errors import ConfigError
@@ -72,16 +72,6 @@ def load_set(paths: Sequence[str], max_frames: int) -> list[SonarImage]:
         keep = np.linspace(0, len(frames) - 1, max_frames).round().astype(int)
         frames = [frames[i] for i in keep]
     return frames
-
-
-def parse_grid(text: str) -> tuple[int, int]:
-    try:
-        ranges, beams = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise ConfigError(f"--grid: expected RANGESxBEAMS such as 128x128, got {text!r}") from exc
-    if ranges < 1 or beams < 1:
-        raise ConfigError(f"--grid: need positive sizes, got {text!r}")
-    return ranges, beams
 
 
 def on_grid(frames: Sequence[SonarImage], grid: tuple[int, int]) -> list[SonarImage]:

@@ -188,6 +188,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     selection = greedy_select(ranked_pairs, gap_before, fit_frames, real_fit_stats, holdout, scale,
                               config.search, stats_cfg, config.max_effects, config.min_gain,
                               config.candidates_per_step, config.normalize, say, target=real_hold_stats,
+                              stats_before=raw_stats,
                               significance=config.significance, bootstrap=config.bootstrap,
                               backfit=config.backfit, seed=config.seed)
 

@@ -159,8 +159,8 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
                   scale: FeatureScale, search: SearchConfig, statistics: StatisticsConfig, max_effects: int,
                   min_gain: float, candidates_per_step: int, normalize: str = "none",
                   progress: Callable[[str], None] | None = None, target: Stats | None = None,
-                  significance: float = 0.95, bootstrap: int = 200, backfit: bool = True,
-                  seed: int = 0) -> Selection:
+                  stats_before: Stats | None = None, significance: float = 0.95, bootstrap: int = 200,
+                  backfit: bool = True, seed: int = 0) -> Selection:
     """Forward selection on the held-out split.
 
     Step 1 takes the best effect of the solo ranking. Every later step tries *every* remaining effect: with
@@ -170,14 +170,14 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
     sets that fit best are judged on held-out frames. An effect that only helps together with another (speckle
     under a gamma curve) is useless alone and ranks low in the solo ranking, so a shortlist taken from that
     ranking would never reconsider it. The shortlisted set lowering the held-out gap most is kept if the gain is
-    at least `min_gain` x gap_before and, with `target` given (the held-out real statistics), significant: the
+    at least `min_gain` x gap_before and, with `target` (the held-out real statistics) and `stats_before` (the
+    held-out sim statistics that gave gap_before) given, significant: the
     one-sided `significance` lower bound of a paired bootstrap of the gain is above 0, so an effect that merely
     nudges the statistics within their sampling noise is left out and the gap stays residual.
     """
     chosen: list[Effect] = []
     path_gaps = [gap_before]
-    current, current_stats = holdout([])
-    current = gap_before if not math.isfinite(current) else current
+    current, current_stats = gap_before, stats_before
     remaining = list(ranked)
     one_round = dataclasses.replace(search, rounds=1)
     stopped = f"reached max_effects={max_effects}"

@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sonar_realism.config import from_dict
+from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.progress import progress
 from sonar_realism.evaluate.suite import SimInput, SuiteConfig, Translator
@@ -38,14 +38,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cnn-epochs", type=int, default=RealismCNNConfig.epochs, help="realism CNN epochs")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda)")
-
-
-def _parse_grid(text: str) -> tuple[int, int]:
-    try:
-        rows, cols = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise ConfigError(f"--grid: expected ROWSxCOLS like 128x128, got {text!r}") from exc
-    return rows, cols
 
 
 def load_translator(spec: str, device: str) -> tuple[str, Translator, str]:
@@ -89,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     from sonar_realism.evaluate.suite import run_suite
 
     torch.manual_seed(args.seed)
-    grid = _parse_grid(args.grid)
+    grid = parse_grid(args.grid)
     config = from_dict(SuiteConfig, {"grid": list(grid), "n_samples": args.n, "seed": args.seed,
                                      "cnn": {"grid": list(grid), "epochs": args.cnn_epochs}})
     translators, paths = {}, {}
