@@ -17,9 +17,9 @@ from sonar_realism.diagnose.gap import (
     gap,
 )
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
-from sonar_realism.diagnose.which import SearchConfig
+from sonar_realism.diagnose.which import RankedEffect, SearchConfig, greedy_select
 from sonar_realism.errors import ConfigError
-from sonar_realism.evaluate.statistics import frame_statistics
+from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.sim import SensorConfig, simulate
@@ -102,6 +102,31 @@ def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():
     assert result["selected"][0] == "tvg_noise"
     assert result["gap_after_selected"] < 0.3 * result["gap_before"]
     assert result["ranked_effects"][0]["params"]["noise_amplitude"] == pytest.approx(0.2, abs=0.12)
+
+
+def test_pruning_drops_an_effect_the_later_ones_make_redundant():
+    # A held-out objective given as a table: A helps alone, B helps more, and with B chosen A adds nothing.
+    frames = sim_frames(4, seed=3)
+    stats = frame_statistics(np.stack([f.normalized() for f in frames]))
+    scale = FeatureScale.pooled(stats, stats)
+    a, b = make_effect("motion_blur"), make_effect("beam_sidelobes")
+    table = {(): 1.0, ("motion_blur",): 0.6, ("beam_sidelobes",): 0.31, ("beam_sidelobes", "motion_blur"): 0.3}
+
+    def holdout(effects):
+        return table[tuple(sorted(e.name for e in effects))], None
+
+    ranked = [(RankedEffect("motion_blur", a.params(), 0.6, 0.0), a),
+              (RankedEffect("beam_sidelobes", b.params(), 0.7, 0.0), b)]
+    common = dict(gap_before=1.0, fit_frames=frames[:2], fit_target=stats, holdout=holdout, scale=scale,
+                  search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(), max_effects=3,
+                  min_gain=0.05, candidates_per_step=2, backfit=False)
+    pruned = greedy_select(ranked, **common)
+    assert [(s.action, s.effect) for s in pruned.path] == [
+        ("start", "none"), ("add", "motion_blur"), ("add", "beam_sidelobes"), ("remove", "motion_blur")]
+    assert [e.name for e in pruned.effects] == ["beam_sidelobes"]
+    assert pruned.path[-1].gap == 0.31
+    kept = greedy_select(ranked, **common, prune=False)
+    assert [e.name for e in kept.effects] == ["motion_blur", "beam_sidelobes"]
 
 
 def test_cli_writes_diagnosis_json_and_report(tmp_path):

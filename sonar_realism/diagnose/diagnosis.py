@@ -29,6 +29,7 @@ from sonar_realism.diagnose.where import (
 from sonar_realism.diagnose.which import (
     RankedEffect,
     SearchConfig,
+    Step,
     check_effect_names,
     corrected_images,
     greedy_select,
@@ -49,8 +50,9 @@ class DiagnoseConfig:
     max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
     gap before to be selected); significance: one-sided level of the paired bootstrap test an effect's gain must
     pass to be selected (0 = no test); backfit: refit the chosen effects around each new candidate;
-    effects: the candidates (empty = the whole catalogue); normalize: "max" divides
-    every frame by its maximum before measuring (for real sets exported that way)."""
+    prune: after forward selection, drop effects the others make redundant; effects: the candidates (empty = the
+    whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets
+    exported that way)."""
 
     holdout_fraction: float = 0.5
     fit_frames: int = 12
@@ -61,6 +63,7 @@ class DiagnoseConfig:
     candidates_per_step: int = 3
     significance: float = 0.95
     backfit: bool = True
+    prune: bool = True
     effects: tuple[str, ...] = ()
     normalize: Literal["none", "max"] = "none"
     bootstrap: int = 200
@@ -96,7 +99,7 @@ class Diagnosis:
     family_before: dict[str, float]
     family_after: dict[str, float]
     ranked: list[RankedEffect]
-    path: list[tuple[str, float]]
+    path: list[Step]
     examples: dict[str, np.ndarray]
 
     def to_json(self) -> dict[str, Any]:
@@ -190,7 +193,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
                               config.candidates_per_step, config.normalize, say, target=real_hold_stats,
                               stats_before=raw_stats,
                               significance=config.significance, bootstrap=config.bootstrap,
-                              backfit=config.backfit, seed=config.seed)
+                              backfit=config.backfit, seed=config.seed, prune=config.prune)
 
     after_images, after_stats = holdout_stats(selection.effects)
     families_after = family_gaps(after_stats, real_hold_stats, scale)
@@ -209,7 +212,6 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     if reference.meta.get("geometry_assumed"):
         reference = eval_frames[0]
     ranked = [pair[0] for pair in ranked_pairs]
-    path = [("none", gap_before)] + [(e.name, g) for e, g in zip(selection.effects, selection.gaps[1:], strict=True)]
     summary = {
         "gap_measure": "mean over statistic families of the unbiased squared standardised mean difference of "
                        "per-frame features (0 = same statistics); held-out frames only",
@@ -222,7 +224,8 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
                             "gap_closed": _closed(gap_before, r.gap_after), "fit_gap": r.fit_gap} for r in ranked],
         "selected": [e.name for e in selection.effects],
         "selected_params": {e.name: e.params() for e in selection.effects},
-        "selection_path": [{"added": name, "gap": g, "gap_closed": _closed(gap_before, g)} for name, g in path],
+        "selection_path": [{"step": step.action, "effect": step.effect, "gap": step.gap,
+                            "gap_closed": _closed(gap_before, step.gap)} for step in selection.path],
         "selection_stopped": selection.stopped,
         "gap_after_selected": gap_after,
         "gap_after_selected_ci95": list(ci_after),
@@ -249,7 +252,8 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         "seconds": time.perf_counter() - started,
     }
     examples = {"sim": raw_eval[0], "corrected": after_images[0], "real": real_hold[0]}
-    return Diagnosis(summary, maps_before, maps_after, families_before, families_after, ranked, path, examples)
+    return Diagnosis(summary, maps_before, maps_after, families_before, families_after, ranked, selection.path,
+                     examples)
 
 
 def _closed(before: float, after: float) -> float:

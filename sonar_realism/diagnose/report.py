@@ -11,6 +11,7 @@ import numpy as np
 from sonar_realism import plots
 from sonar_realism.diagnose.diagnosis import Diagnosis
 from sonar_realism.diagnose.where import level_names
+from sonar_realism.diagnose.which import Step
 
 
 def write_report(diagnosis: Diagnosis, out_dir: str | Path, title: str = "Sim-to-real gap diagnosis") -> Path:
@@ -28,6 +29,7 @@ def write_figures(diagnosis: Diagnosis, out: Path, prefix: str = "diag_") -> dic
     s = diagnosis.summary
     cell_max = float(max(diagnosis.maps_before.cells.max(), diagnosis.maps_after.cells.max(), 1e-9))
     ranked = s["ranked_effects"]
+    path = diagnosis.path
     figs = {
         "families": plots.bar_plot(
             [*diagnosis.family_before, *(f"{k} (after)" for k in diagnosis.family_after)],
@@ -40,10 +42,10 @@ def write_figures(diagnosis: Diagnosis, out: Path, prefix: str = "diag_") -> dic
                                   out / f"{prefix}ranking.png",
                                   title=f"held-out gap after each effect alone (before: {s['gap_before']:.3g}; "
                                         "bars clipped at 2x)", ylabel="gap", size=(960, 420)),
-        "curve": plots.line_plot({"held-out gap": (list(range(len(diagnosis.path))), [g for _, g in diagnosis.path])},
+        "curve": plots.line_plot({"held-out gap": (list(range(len(path))), [step.gap for step in path])},
                                  out / f"{prefix}curve.png",
-                                 title="gap as selected effects are added: " + " > ".join(n for n, _ in diagnosis.path),
-                                 xlabel="effects added", ylabel="gap"),
+                                 title="gap along the selection: " + " > ".join(_step_label(step) for step in path),
+                                 xlabel="step", ylabel="gap"),
         "cells_before": plots.heatmap(diagnosis.maps_before.cells, out / f"{prefix}cells_before.png",
                                       title="gap per range (rows, near at top) x bearing cell: before",
                                       vmin=0.0, vmax=cell_max),
@@ -101,10 +103,14 @@ def markdown(diagnosis: Diagnosis, figures: dict[str, str], title: str) -> str:
     for i, r in enumerate(s["ranked_effects"], 1):
         params = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in r["params"].items())
         lines.append(f"| {i} | {r['name']} | {r['gap_after']:.3g} | {100 * r['gap_closed']:.0f}% | {params} |")
-    lines += ["", f"![ranking]({figures['ranking']})", "", "## How far: greedy forward selection", "",
-              "| step | added | held-out gap | gap closed |", "|---|---|---|---|"]
+    lines += ["", f"![ranking]({figures['ranking']})", "",
+              "## How far: greedy forward selection, then backward pruning", "",
+              "Each step adds the effect that lowers the held-out gap most (significantly); pruning then drops an "
+              "effect the later ones make redundant.", "",
+              "| step | action | effect | held-out gap | gap closed |", "|---|---|---|---|---|"]
     for i, step in enumerate(s["selection_path"]):
-        lines.append(f"| {i} | {step['added']} | {step['gap']:.3g} | {100 * step['gap_closed']:.0f}% |")
+        lines.append(f"| {i} | {step['step']} | {step['effect']} | {step['gap']:.3g} | "
+                     f"{100 * step['gap_closed']:.0f}% |")
     lines += ["", f"Selection stopped: {s['selection_stopped']}.", "", f"![curve]({figures['curve']})", "",
               "## Residual: what no catalogued effect explains", "",
               f"Size {res['size']:.3g} ({100 * res['fraction_of_gap_before']:.0f}% of the gap before; "
@@ -114,6 +120,10 @@ def markdown(diagnosis: Diagnosis, figures: dict[str, str], title: str) -> str:
     lines += [""] + _where_lines(res)
     lines += ["", f"![cells after]({figures['cells_after']})", "", f"![examples]({figures['examples']})", ""]
     return "\n".join(lines)
+
+
+def _step_label(step: Step) -> str:
+    return {"add": "+", "remove": "-"}.get(step.action, "") + step.effect
 
 
 def _where_lines(where: dict[str, Any]) -> list[str]:

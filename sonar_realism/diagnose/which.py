@@ -5,6 +5,9 @@ around the best value), minimising the headline gap between the corrected fit-sp
 real frames. The same random draws are used for every candidate parameter value (common random numbers), so the
 objective is smooth in the parameters and a handful of frames suffice. Ranking and selection are judged on the
 held-out split only.
+
+After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
+after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped.
 """
 
 from __future__ import annotations
@@ -72,8 +75,7 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
     statistics closest to `target`. The search starts from `start` (default: the catalogue's values) or from
     whichever of `alternatives` fits better there."""
     statistics = statistics or StatisticsConfig()
-    cls = EFFECTS[name]
-    bounds = dict(cls.PARAM_BOUNDS)
+    bounds = dict(EFFECTS[name].PARAM_BOUNDS)
 
     def clipped(effect: Effect) -> Effect:
         return dataclasses.replace(effect, **{k: float(np.clip(getattr(effect, k), *bounds[k])) for k in bounds})
@@ -129,12 +131,22 @@ class RankedEffect:
 
 
 @dataclass(frozen=True)
+class Step:
+    """One step of the selection: `action` is "start" (nothing applied), "add" or "remove" (backward pruning);
+    `gap` the held-out gap after it."""
+
+    action: str
+    effect: str
+    gap: float
+
+
+@dataclass(frozen=True)
 class Selection:
-    """The greedy path: `effects` in the order chosen; `gaps[0]` the gap before, `gaps[i]` after the first i effects;
-    `stopped` says why the selection ended."""
+    """`effects`: the selected effects as finally fitted; `path`: every step taken; `stopped`: why the forward
+    selection ended."""
 
     effects: list[Effect]
-    gaps: list[float]
+    path: list[Step]
     stopped: str
 
 
@@ -160,23 +172,26 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
                   min_gain: float, candidates_per_step: int, normalize: str = "none",
                   progress: Callable[[str], None] | None = None, target: Stats | None = None,
                   stats_before: Stats | None = None, significance: float = 0.95, bootstrap: int = 200,
-                  backfit: bool = True, seed: int = 0) -> Selection:
-    """Forward selection on the held-out split.
+                  backfit: bool = True, seed: int = 0, prune: bool = True) -> Selection:
+    """Forward selection on the held-out split, then backward pruning.
 
     Step 1 takes the best effect of the solo ranking. Every later step tries *every* remaining effect: with
-    `backfit`, the chosen effects are first refitted around its solo fit (their earlier fit may have compensated
-    for the effect that was still missing), then it is refitted on top of them (one search round each, on the fit
-    split, from the previous fit or the catalogue's default, whichever fits better); the `candidates_per_step`
-    sets that fit best are judged on held-out frames. An effect that only helps together with another (speckle
-    under a gamma curve) is useless alone and ranks low in the solo ranking, so a shortlist taken from that
-    ranking would never reconsider it. The shortlisted set lowering the held-out gap most is kept if the gain is
-    at least `min_gain` x gap_before and, with `target` (the held-out real statistics) and `stats_before` (the
-    held-out sim statistics that gave gap_before) given, significant: the
-    one-sided `significance` lower bound of a paired bootstrap of the gain is above 0, so an effect that merely
-    nudges the statistics within their sampling noise is left out and the gap stays residual.
+    `backfit`, the chosen effects (calibration included) are first refitted around its solo fit (their earlier fit
+    may have compensated for the effect that was still missing), then it is refitted on top of them (one search
+    round each, on the fit split, from the previous fit or the catalogue's default, whichever fits better); the
+    `candidates_per_step` sets that fit best are judged on held-out frames. An effect that only helps together
+    with another (speckle under a gamma curve) is useless alone and ranks low in the solo ranking, so a shortlist
+    taken from that ranking would never reconsider it. The shortlisted set lowering the held-out gap most is kept
+    if the gain is at least `min_gain` x gap_before and, with `target` (the held-out real statistics) and
+    `stats_before` (the held-out sim statistics that gave gap_before) given, significant: the one-sided
+    `significance` lower bound of a paired bootstrap of the gain is above 0, so an effect that merely nudges the
+    statistics within their sampling noise is left out and the gap stays residual.
+
+    Pruning then tries the selected set without each of its effects (the rest refitted): the effect whose
+    removal costs least is dropped unless that cost passes the same two tests, and so on.
     """
     chosen: list[Effect] = []
-    path_gaps = [gap_before]
+    path = [Step("start", "none", gap_before)]
     current, current_stats = gap_before, stats_before
     remaining = list(ranked)
     one_round = dataclasses.replace(search, rounds=1)
@@ -188,22 +203,33 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         return fit_effect(name, fit_frames, fit_target, scale, base=base, start=start, search=one_round,
                           statistics=statistics, normalize=normalize, alternatives=[make_effect(name)])
 
-    while remaining and len(chosen) < max_effects:
+    def refit_each(effects: Sequence[Effect], around: Sequence[Effect] = ()) -> list[Effect]:
+        effects = list(effects)
+        if backfit:
+            for i, previous in enumerate(effects):
+                effects[i] = refit(previous.name, [*effects[:i], *effects[i + 1:], *around], previous).effect
+        return effects
+
+    def lower_bound(worse: Stats | None, better: Stats | None, draw: int) -> tuple[float, float]:
+        """The paired-bootstrap gain of `better` over `worse` and its one-sided lower bound (+inf: no test)."""
+        if target is None or worse is None or better is None or significance <= 0:
+            return math.nan, math.inf
+        return bootstrap_gain(worse, better, target, scale, bootstrap, significance, seed=seed + draw)
+
+    added = 0
+    while remaining and added < max_effects:
         if current <= min_gain * gap_before:
             stopped = f"the gap left is below {min_gain:.0%} of the gap before (nothing left to explain)"
             break
-        if chosen:
+        if added:
             screened = []
             for info, solo in remaining:
-                base = list(chosen)
-                if backfit:  # the chosen effects around the candidate first, then the candidate on top of them
-                    for i, previous in enumerate(base):
-                        base[i] = refit(previous.name, [*base[:i], *base[i + 1:], solo], previous).effect
+                base = refit_each(chosen, around=[solo])
                 fit = refit(info.name, base, solo)
                 screened.append((fit.fit_gap, base, fit.effect, info))
             shortlist = sorted(screened, key=lambda t: t[0])[:candidates_per_step]
         else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
-            shortlist = [(remaining[0][0].fit_gap, [], remaining[0][1], remaining[0][0])]
+            shortlist = [(remaining[0][0].fit_gap, list(chosen), remaining[0][1], remaining[0][0])]
         trials = []
         for _, base, effect, info in shortlist:
             gap_value, stats = holdout([*base, effect])
@@ -212,23 +238,39 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         if current - best_gap < min_gain * max(gap_before, 1e-12):
             stopped = f"no remaining effect lowers the held-out gap by {min_gain:.0%} of the gap before"
             break
-        if target is not None and current_stats is not None and best_stats is not None and significance > 0:
-            gain, lower = bootstrap_gain(current_stats, best_stats, target, scale, bootstrap, significance,
-                                         seed=seed + len(chosen))
-            if lower <= 0.0:
-                stopped = (f"the best remaining effect ({best_info.name}) lowers the held-out gap by {gain:.3g}, "
-                           f"not significantly (one-sided {significance:.0%} lower bound {lower:.3g} <= 0)")
-                break
+        gain, lower = lower_bound(current_stats, best_stats, added)
+        if lower <= 0.0:
+            stopped = (f"the best remaining effect ({best_info.name}) lowers the held-out gap by {gain:.3g}, "
+                       f"not significantly (one-sided {significance:.0%} lower bound {lower:.3g} <= 0)")
+            break
         chosen = [*best_base, best_effect]
-        path_gaps.append(best_gap)
+        path.append(Step("add", best_info.name, best_gap))
         current, current_stats = best_gap, best_stats
         remaining = [pair for pair in remaining if pair[0].name != best_info.name]
+        added += 1
         if progress:
-            progress(f"selected {best_info.name}: held-out gap {best_gap:.4g}")
+            progress(f"selected {best_info.name}: held-out gap {best_gap:.4g} (gain {gain:.3g}, one-sided "
+                     f"{significance:.0%} lower bound {lower:.3g})")
     else:
         if not remaining:
             stopped = "every catalogued effect selected"
-    return Selection(chosen, path_gaps, stopped)
+
+    while prune and added >= 2:
+        trials = []
+        for effect in chosen:
+            rest = refit_each([e for e in chosen if e is not effect])
+            gap_value, stats = holdout(rest)
+            trials.append((gap_value, rest, effect, stats))
+        gap_without, rest, dropped, stats_without = min(trials, key=lambda t: t[0])
+        cost = gap_without - current
+        if cost >= min_gain * max(gap_before, 1e-12) and lower_bound(stats_without, current_stats, 100 + added)[1] > 0:
+            break
+        chosen, current, current_stats = rest, gap_without, stats_without
+        path.append(Step("remove", dropped.name, gap_without))
+        added -= 1
+        if progress:
+            progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
+    return Selection(chosen, path, stopped)
 
 
 def check_effect_names(names: Sequence[str]) -> list[str]:
