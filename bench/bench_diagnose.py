@@ -111,6 +111,9 @@ def summarise(rows: list[dict]) -> dict:
             "recall_pairs": float(np.mean([r["recall"] for r in pairs])) if pairs else None,
             "exact_set_pairs": (float(np.mean([set(r["selected"]) == set(r["hidden"]) for r in pairs]))
                                 if pairs else None),
+            # of all effects selected in catalogued cases, the share that was hidden (spurious extras lower it)
+            "precision_selected": (float(np.mean([name in r["hidden"] for r in catalogued for name in r["selected"]]))
+                                   if any(r["selected"] for r in catalogued) else None),
             "param_error_median": float(np.median(errors)) if errors else None,
             "gap_closed_mean": float(np.mean([r["gap_closed"] for r in catalogued])),
             "gap_closed_median": float(np.median([r["gap_closed"] for r in catalogued])),
@@ -163,6 +166,8 @@ def main() -> int:
     if summary["recall_pairs"] is not None:
         print(f"| recall of both effects, pairs | {summary['recall_pairs']:.0%} | - |")
         print(f"| pairs whose selected set is exactly the hidden pair | {summary['exact_set_pairs']:.0%} | - |")
+    if summary["precision_selected"] is not None:
+        print(f"| selected effects that were hidden (single, pair cases) | {summary['precision_selected']:.0%} | - |")
     print(f"| parameter error (median, fraction of search range) | {summary['param_error_median']:.3f} | - |")
     print(f"| gap closed on held-out frames (mean / median) | {summary['gap_closed_mean']:.0%} / "
           f"{summary['gap_closed_median']:.0%} | >= 70% |")
