@@ -104,6 +104,24 @@ def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():
     assert result["ranked_effects"][0]["params"]["noise_amplitude"] == pytest.approx(0.2, abs=0.12)
 
 
+def test_a_plain_gain_difference_is_not_blamed_on_an_effect():
+    # "Real" = the sim's world 3 dB darker, falling a further 4 dB towards the far range. The TVG ramp or the
+    # quantiser's gain can mimic that, but a plain gain profile does as well, so no effect is blamed for it.
+    real = []
+    for frame in sim_frames(10, seed=2):
+        t = (frame.ranges_m - frame.ranges_m[0]) / (frame.ranges_m[-1] - frame.ranges_m[0])
+        gain = (10 ** ((-3.0 - 4.0 * t) / 20)).astype(np.float32)[:, None]
+        real.append(frame.replace(intensity=frame.normalized() * gain, intensity_scale=1.0))
+    config = dataclasses.replace(FAST, effects=("tvg_noise", "gamma_quantization", "ring_down"))
+    unchecked = diagnose(sim_frames(10, seed=1), real, dataclasses.replace(config, gain_check=False)).summary
+    assert unchecked["selected"] != []  # without the check, an effect's gain parameter takes the blame
+    result = diagnose(sim_frames(10, seed=1), real, config).summary
+    assert result["selected"] == []
+    assert {s["effect"] for s in result["gain_stand_ins"]} == set(unchecked["selected"])
+    assert [step["step"] for step in result["selection_path"]][-1] == "gain_stand_in"
+    assert result["residual"]["significant"]
+
+
 def test_pruning_drops_an_effect_the_later_ones_make_redundant():
     # A held-out objective given as a table: A helps alone, B helps more, and with B chosen A adds nothing.
     frames = sim_frames(4, seed=3)
@@ -119,7 +137,7 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
               (RankedEffect("beam_sidelobes", b.params(), 0.7, 0.0), b)]
     common = dict(gap_before=1.0, fit_frames=frames[:2], fit_target=stats, holdout=holdout, scale=scale,
                   search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(), max_effects=3,
-                  min_gain=0.05, candidates_per_step=2, backfit=False)
+                  min_gain=0.05, candidates_per_step=2, backfit=False, gain_check=False)
     pruned = greedy_select(ranked, **common)
     assert [(s.action, s.effect) for s in pruned.path] == [
         ("start", "none"), ("add", "motion_blur"), ("add", "beam_sidelobes"), ("remove", "motion_blur")]

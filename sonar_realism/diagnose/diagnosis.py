@@ -50,7 +50,8 @@ class DiagnoseConfig:
     max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
     gap before to be selected); significance: one-sided level of the paired bootstrap test an effect's gain must
     pass to be selected (0 = no test); backfit: refit the chosen effects around each new candidate;
-    prune: after forward selection, drop effects the others make redundant; effects: the candidates (empty = the
+    prune: after forward selection, drop effects the others make redundant; gain_check: drop selected effects
+    that do no better than a plain gain difference (level and range ramp); effects: the candidates (empty = the
     whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets
     exported that way)."""
 
@@ -64,6 +65,7 @@ class DiagnoseConfig:
     significance: float = 0.95
     backfit: bool = True
     prune: bool = True
+    gain_check: bool = True
     effects: tuple[str, ...] = ()
     normalize: Literal["none", "max"] = "none"
     bootstrap: int = 200
@@ -193,7 +195,8 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
                               config.candidates_per_step, config.normalize, say, target=real_hold_stats,
                               stats_before=raw_stats,
                               significance=config.significance, bootstrap=config.bootstrap,
-                              backfit=config.backfit, seed=config.seed, prune=config.prune)
+                              backfit=config.backfit, seed=config.seed, prune=config.prune,
+                              gain_check=config.gain_check)
 
     after_images, after_stats = holdout_stats(selection.effects)
     families_after = family_gaps(after_stats, real_hold_stats, scale)
@@ -227,6 +230,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         "selection_path": [{"step": step.action, "effect": step.effect, "gap": step.gap,
                             "gap_closed": _closed(gap_before, step.gap)} for step in selection.path],
         "selection_stopped": selection.stopped,
+        "gain_stand_ins": selection.stand_ins,
         "gap_after_selected": gap_after,
         "gap_after_selected_ci95": list(ci_after),
         "classifier_auc_after_selected": {"auc": auc_after[0], "stderr": auc_after[1]},

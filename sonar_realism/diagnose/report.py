@@ -104,14 +104,23 @@ def markdown(diagnosis: Diagnosis, figures: dict[str, str], title: str) -> str:
         params = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in r["params"].items())
         lines.append(f"| {i} | {r['name']} | {r['gap_after']:.3g} | {100 * r['gap_closed']:.0f}% | {params} |")
     lines += ["", f"![ranking]({figures['ranking']})", "",
-              "## How far: greedy forward selection, then backward pruning", "",
+              "## How far: greedy forward selection, backward pruning, the gain check", "",
               "Each step adds the effect that lowers the held-out gap most (significantly); pruning then drops an "
-              "effect the later ones make redundant.", "",
+              "effect the later ones make redundant, and an effect that does no better than a plain gain "
+              "difference is not blamed.", "",
               "| step | action | effect | held-out gap | gap closed |", "|---|---|---|---|---|"]
     for i, step in enumerate(s["selection_path"]):
         lines.append(f"| {i} | {step['step']} | {step['effect']} | {step['gap']:.3g} | "
                      f"{100 * step['gap_closed']:.0f}% |")
-    lines += ["", f"Selection stopped: {s['selection_stopped']}.", "", f"![curve]({figures['curve']})", "",
+    lines += ["", f"Selection stopped: {s['selection_stopped']}."]
+    for stand_in in s["gain_stand_ins"]:
+        gain = stand_in["gain_profile"]
+        lines += ["", f"Not blamed: **{stand_in['effect']}** did no better than a plain gain difference (level "
+                      f"{gain['level_db']:+.1f} dB, ramp {gain['ramp_db']:+.1f} dB over range: held-out gap "
+                      f"{stand_in['gap_with_gain_profile']:.3g} against {stand_in['gap_with_effect']:.3g} with the "
+                      "effect), so its part of the gap is left in the residual: a gain pattern the catalogue lacks, "
+                      "or the sim's intensity scale."]
+    lines += ["", f"![curve]({figures['curve']})", "",
               "## Residual: what no catalogued effect explains", "",
               f"Size {res['size']:.3g} ({100 * res['fraction_of_gap_before']:.0f}% of the gap before; "
               f"{'significant' if res['significant'] else 'not significant'}: the 95% CI "
@@ -123,7 +132,7 @@ def markdown(diagnosis: Diagnosis, figures: dict[str, str], title: str) -> str:
 
 
 def _step_label(step: Step) -> str:
-    return {"add": "+", "remove": "-"}.get(step.action, "") + step.effect
+    return {"add": "+", "remove": "-", "gain_stand_in": "-"}.get(step.action, "") + step.effect
 
 
 def _where_lines(where: dict[str, Any]) -> list[str]:

@@ -7,7 +7,10 @@ objective is smooth in the parameters and a handful of frames suffice. Ranking a
 held-out split only.
 
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
-after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped.
+after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. Last,
+each selected effect must beat a plain gain difference (`GainProfile`): an effect whose fitted form does no more
+than a level and a range ramp would (a TVG ramp standing in for a beam-gain pattern the catalogue lacks) is not
+blamed, and its part of the gap stays residual.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -42,6 +46,34 @@ class SearchConfig:
 
 
 @dataclass(frozen=True)
+class GainProfile(Effect):
+    """A plain gain difference: an overall level and a linear ramp in dB over range. Not a sensor effect: the
+    yardstick every selected effect must beat, applied to the sim frames before any effect."""
+
+    name: ClassVar[str] = "gain_profile"
+    level_db: float = 0.0
+    ramp_db: float = 0.0
+    PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {"level_db": (-12.0, 12.0), "ramp_db": (-12.0, 12.0)}
+    VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {"level_db": (-60.0, 60.0), "ramp_db": (-60.0, 60.0)}
+    # A gain is one smooth dimension each: a finer search than the effects get is cheap and keeps the yardstick
+    # from losing to an effect only because its grid missed a fraction of a dB.
+    SEARCH_ROUNDS: ClassVar[int] = 6
+
+    def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
+        r = frame.ranges_m
+        gain_db = self.level_db + self.ramp_db * (r - r[0]) / max(r[-1] - r[0], 1e-9)
+        return intensity * (10 ** (gain_db / 20)).astype(np.float32)[:, None]
+
+
+def candidate_class(name: str) -> type[Effect]:
+    return GainProfile if name == GainProfile.name else EFFECTS[name]
+
+
+def default_candidate(name: str) -> Effect:
+    return GainProfile() if name == GainProfile.name else make_effect(name)
+
+
+@dataclass(frozen=True)
 class Fit:
     effect: Effect
     fit_gap: float
@@ -52,9 +84,13 @@ def corrected_images(frames: Sequence[SonarImage], effects: Sequence[Effect], se
                      normalize: str = "none") -> np.ndarray:
     """Apply `effects` to every frame (one generator seeded with `seed`) and stack as float32 [n, R, B] in [0, 1]."""
     rng = np.random.default_rng(seed)
+    gains = [e for e in effects if isinstance(e, GainProfile)]
+    sensor_effects = [e for e in effects if not isinstance(e, GainProfile)]
     out = []
     for frame in frames:
-        corrected = apply_effects(frame, effects, rng) if effects else frame
+        for gain in gains:
+            frame = frame.replace(intensity=gain.apply(frame.normalized(), frame, rng), intensity_scale=1.0)
+        corrected = apply_effects(frame, sensor_effects, rng) if sensor_effects else frame
         out.append(normalize_image(corrected.normalized(), normalize))
     return np.stack(out)
 
@@ -75,12 +111,12 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
     statistics closest to `target`. The search starts from `start` (default: the catalogue's values) or from
     whichever of `alternatives` fits better there."""
     statistics = statistics or StatisticsConfig()
-    bounds = dict(EFFECTS[name].PARAM_BOUNDS)
+    bounds = dict(candidate_class(name).PARAM_BOUNDS)
 
     def clipped(effect: Effect) -> Effect:
         return dataclasses.replace(effect, **{k: float(np.clip(getattr(effect, k), *bounds[k])) for k in bounds})
 
-    current = clipped(start if start is not None else make_effect(name))
+    current = clipped(start if start is not None else default_candidate(name))
 
     evaluations = 0
     cache: dict[tuple, float] = {}
@@ -132,8 +168,8 @@ class RankedEffect:
 
 @dataclass(frozen=True)
 class Step:
-    """One step of the selection: `action` is "start" (nothing applied), "add" or "remove" (backward pruning);
-    `gap` the held-out gap after it."""
+    """One step of the selection: `action` is "start" (nothing applied), "add", "remove" (backward pruning) or
+    "gain_stand_in" (removed: a plain gain difference does its job); `gap` the held-out gap after it."""
 
     action: str
     effect: str
@@ -143,11 +179,12 @@ class Step:
 @dataclass(frozen=True)
 class Selection:
     """`effects`: the selected effects as finally fitted; `path`: every step taken; `stopped`: why the forward
-    selection ended."""
+    selection ended; `stand_ins`: effects dropped because a plain gain difference explained as much."""
 
     effects: list[Effect]
     path: list[Step]
     stopped: str
+    stand_ins: list[dict] = dataclasses.field(default_factory=list)
 
 
 def rank_effects(names: Sequence[str], fit_frames: Sequence[SonarImage], fit_target: Stats,
@@ -172,8 +209,9 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
                   min_gain: float, candidates_per_step: int, normalize: str = "none",
                   progress: Callable[[str], None] | None = None, target: Stats | None = None,
                   stats_before: Stats | None = None, significance: float = 0.95, bootstrap: int = 200,
-                  backfit: bool = True, seed: int = 0, prune: bool = True) -> Selection:
-    """Forward selection on the held-out split, then backward pruning.
+                  backfit: bool = True, seed: int = 0, prune: bool = True,
+                  gain_check: bool = True) -> Selection:
+    """Forward selection on the held-out split, then backward pruning, then the gain check.
 
     Step 1 takes the best effect of the solo ranking. Every later step tries *every* remaining effect: with
     `backfit`, the chosen effects (calibration included) are first refitted around its solo fit (their earlier fit
@@ -189,6 +227,9 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
 
     Pruning then tries the selected set without each of its effects (the rest refitted): the effect whose
     removal costs least is dropped unless that cost passes the same two tests, and so on.
+
+    The gain check (`gain_check`) replaces each selected effect in turn by a `GainProfile` fitted on top of the
+    others: unless the effect beats it significantly on held-out frames, the effect is dropped (a "stand-in").
     """
     chosen: list[Effect] = []
     path = [Step("start", "none", gap_before)]
@@ -201,7 +242,7 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         # the catalogue's default is the other start: a fit made while another effect was missing may sit in a
         # compromise (a gamma curve bent to mimic speckle) from which one coordinate round does not come back
         return fit_effect(name, fit_frames, fit_target, scale, base=base, start=start, search=one_round,
-                          statistics=statistics, normalize=normalize, alternatives=[make_effect(name)])
+                          statistics=statistics, normalize=normalize, alternatives=[default_candidate(name)])
 
     def refit_each(effects: Sequence[Effect], around: Sequence[Effect] = ()) -> list[Effect]:
         effects = list(effects)
@@ -270,7 +311,30 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         added -= 1
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
-    return Selection(chosen, path, stopped)
+
+    stand_ins = []
+    gain_search = dataclasses.replace(search, rounds=max(search.rounds, GainProfile.SEARCH_ROUNDS))
+    for index, name in enumerate([e.name for e in chosen] if gain_check else []):
+        effect = next(e for e in chosen if e.name == name)  # as last refitted
+        rest = [e for e in chosen if e.name != name]
+        gain = fit_effect(GainProfile.name, fit_frames, fit_target, scale, base=rest, search=gain_search,
+                          statistics=statistics, normalize=normalize).effect
+        gap_gain, stats_gain = holdout([*rest, gain])
+        edge, lower = lower_bound(stats_gain, current_stats, 200 + index)
+        beats = lower > 0.0 if math.isfinite(lower) else current < gap_gain
+        if beats:
+            continue
+        rest = refit_each(rest)
+        gap_rest, stats_rest = holdout(rest)
+        stand_ins.append({"effect": effect.name, "params": effect.params(), "gain_profile": gain.params(),
+                          "gap_with_effect": current, "gap_with_gain_profile": gap_gain,
+                          "edge_over_gain_profile": edge, "lower_bound": lower})
+        chosen, current, current_stats = rest, gap_rest, stats_rest
+        path.append(Step("gain_stand_in", effect.name, gap_rest))
+        if progress:
+            progress(f"{effect.name} does no more than a gain profile ({gain.params()}): not blamed; held-out gap "
+                     f"{gap_rest:.4g}")
+    return Selection(chosen, path, stopped, stand_ins)
 
 
 def check_effect_names(names: Sequence[str]) -> list[str]:
