@@ -132,7 +132,7 @@ def markdown(diagnosis: Diagnosis, figures: dict[str, str], title: str) -> str:
 
 
 def _step_label(step: Step) -> str:
-    return {"add": "+", "remove": "-", "gain_stand_in": "-"}.get(step.action, "") + step.effect
+    return {"add": "+", "remove": "-", "gain_stand_in": "-", "refit": "refit "}.get(step.action, "") + step.effect
 
 
 def _where_lines(where: dict[str, Any]) -> list[str]:

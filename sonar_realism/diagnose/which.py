@@ -168,8 +168,9 @@ class RankedEffect:
 
 @dataclass(frozen=True)
 class Step:
-    """One step of the selection: `action` is "start" (nothing applied), "add", "remove" (backward pruning) or
-    "gain_stand_in" (removed: a plain gain difference does its job); `gap` the held-out gap after it."""
+    """One step of the selection: `action` is "start" (nothing applied), "add", "refit" (pruning refitted the
+    whole set, which fitted better), "remove" (pruned) or "gain_stand_in" (removed: a plain gain difference does
+    its job); `gap` the held-out gap after it."""
 
     action: str
     effect: str
@@ -225,8 +226,8 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
     `significance` lower bound of a paired bootstrap of the gain is above 0, so an effect that merely nudges the
     statistics within their sampling noise is left out and the gap stays residual.
 
-    Pruning then tries the selected set without each of its effects (the rest refitted): the effect whose
-    removal costs least is dropped unless that cost passes the same two tests, and so on.
+    Pruning then takes the effect whose removal costs least and compares the set without it against the whole
+    set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainProfile` fitted on top of the
     others: if that does at least as well on held-out frames, the effect is dropped (a "stand-in"). Not a
@@ -299,12 +300,17 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
             stopped = "every catalogued effect selected"
 
     while prune and added >= 2:
-        trials = []
-        for effect in chosen:
-            rest = refit_each([e for e in chosen if e is not effect])
-            gap_value, stats = holdout(rest)
-            trials.append((gap_value, rest, effect, stats))
-        gap_without, rest, dropped, stats_without = min(trials, key=lambda t: t[0])
+        # the candidate for removal: the effect whose absence hurts least as the others stand
+        dropped = min(chosen, key=lambda e: holdout([other for other in chosen if other is not e])[0])
+        # judged with both sides refitted alike: the others were fitted while `dropped` was present, and a refit
+        # of the rest alone would credit the removal with what is only a better fit
+        full = refit_each(chosen)
+        gap_full, stats_full = holdout(full)
+        if gap_full < current:
+            chosen, current, current_stats = full, gap_full, stats_full
+            path.append(Step("refit", "all", gap_full))
+        rest = refit_each([e for e in chosen if e.name != dropped.name])
+        gap_without, stats_without = holdout(rest)
         cost = gap_without - current
         if cost >= min_gain * max(gap_before, 1e-12) and lower_bound(stats_without, current_stats, 100 + added)[1] > 0:
             break
