@@ -14,7 +14,7 @@ A classifier two-sample AUC over the same features is reported alongside as the 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,19 +74,32 @@ def gap(a: Stats, b: Stats, scale: FeatureScale) -> float:
 def bootstrap_interval(a: Stats, b: Stats, scale: FeatureScale, n_boot: int = 200, level: float = 0.95,
                        seed: int = 0) -> tuple[float, float]:
     """Interval of the headline gap from frame resamplings of both sets (percentiles, centred on the estimate)."""
-    rng = np.random.default_rng(seed)
-    na = next(iter(a.values())).shape[0]
-    nb = next(iter(b.values())).shape[0]
-    values = []
-    for _ in range(n_boot):
-        ia = rng.integers(0, na, na)
-        ib = rng.integers(0, nb, nb)
-        values.append(gap({f: v[ia] for f, v in a.items()}, {f: v[ib] for f, v in b.items()}, scale))
+    values = _resampled(lambda ia, ib: gap(_rows(a, ia), _rows(b, ib), scale), _count(a), _count(b), n_boot, seed)
     # Resampling with replacement shifts the gap (duplicated frames look like a real difference); centre the
     # bootstrap spread on the estimate so the interval describes its uncertainty, not that shift.
     centre = gap(a, b, scale)
     lo, hi = np.quantile(values, ((1 - level) / 2, 1 - (1 - level) / 2)) - np.mean(values) + centre
     return float(lo), float(hi)
+
+
+def _count(stats: Stats) -> int:
+    return next(iter(stats.values())).shape[0]
+
+
+def _rows(stats: Stats, index: np.ndarray) -> dict[str, np.ndarray]:
+    return {family: values[index] for family, values in stats.items()}
+
+
+def _resampled(statistic: Callable[[np.ndarray, np.ndarray], float], na: int, nb: int, n_boot: int,
+               seed: int) -> np.ndarray:
+    """`statistic(ia, ib)` over `n_boot` draws of frame indices with replacement: ia for one set, ib for the other."""
+    rng = np.random.default_rng(seed)
+    values = []
+    for _ in range(n_boot):
+        ia = rng.integers(0, na, na)
+        ib = rng.integers(0, nb, nb)
+        values.append(statistic(ia, ib))
+    return np.array(values)
 
 
 def classifier_auc(a: Stats, b: Stats, folds: int = 5, l2: float = 1.0, seed: int = 0) -> tuple[float, float]:
@@ -157,21 +170,18 @@ def bootstrap_gain(before: Stats, after: Stats, target: Stats, scale: FeatureSca
     gain at `level`. `before` and `after` are the same frames under two corrections (row i of both comes from one
     sim frame), so frames are resampled in pairs: scene variation common to both cancels, and what is left is the
     uncertainty of the gain itself."""
-    rng = np.random.default_rng(seed)
-    na = next(iter(before.values())).shape[0]
-    nb = next(iter(target.values())).shape[0]
-    if next(iter(after.values())).shape[0] != na:
+    na, nb = _count(before), _count(target)
+    if _count(after) != na:
         raise ConfigError("bootstrap_gain: `before` and `after` must hold the same frames")
     estimate = gap(before, target, scale) - gap(after, target, scale)
     if n_boot < 1:
         return float(estimate), float(estimate)
-    values = []
-    for _ in range(n_boot):
-        ia = rng.integers(0, na, na)
-        ib = rng.integers(0, nb, nb)
-        resampled_target = {f: v[ib] for f, v in target.items()}
-        values.append(gap({f: v[ia] for f, v in before.items()}, resampled_target, scale)
-                      - gap({f: v[ia] for f, v in after.items()}, resampled_target, scale))
+
+    def gain(ia: np.ndarray, ib: np.ndarray) -> float:
+        resampled_target = _rows(target, ib)
+        return gap(_rows(before, ia), resampled_target, scale) - gap(_rows(after, ia), resampled_target, scale)
+
+    values = _resampled(gain, na, nb, n_boot, seed)
     # centred on the estimate, as bootstrap_interval does
     lower = np.quantile(values, 1 - level) - np.mean(values) + estimate
     return float(estimate), float(lower)

@@ -15,7 +15,7 @@ import numpy as np
 
 from sonar_realism.diagnose.gap import FeatureScale, Stats, feature_gaps
 from sonar_realism.errors import ConfigError
-from sonar_realism.evaluate.statistics import level_histograms, octave_band_edges, patch_moments
+from sonar_realism.evaluate.statistics import StatisticsConfig, level_histograms, octave_band_edges, patch_moments
 
 CELL_FEATURES = ("mean", "contrast", "grain_beam", "grain_range")
 # Octave intensity levels: sonar frames are mostly dark, so equal-width levels would lump the background together.
@@ -104,7 +104,8 @@ class GapMaps:
 
 
 def gap_maps(where_a: Stats, where_b: Stats, where_scale: FeatureScale, stats_a: Stats, stats_b: Stats,
-             stats_scale: FeatureScale, config: WhereConfig = WhereConfig(), profile_bins: int = 32) -> GapMaps:
+             stats_scale: FeatureScale, config: WhereConfig = WhereConfig(),
+             profile_bins: int = StatisticsConfig.profile_bins) -> GapMaps:
     local = feature_gaps(where_a, where_b, where_scale)
     cells = local["cells"].reshape(config.range_cells, config.bearing_cells, len(CELL_FEATURES)).mean(axis=2)
     n_levels = len(LEVEL_EDGES) - 1

@@ -215,7 +215,7 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
     """Forward selection on the held-out split, then backward pruning, then the gain check.
 
     Step 1 takes the best effect of the solo ranking. Every later step tries *every* remaining effect: with
-    `backfit`, the chosen effects (calibration included) are first refitted around its solo fit (their earlier fit
+    `backfit`, the chosen effects are first refitted around its solo fit (their earlier fit
     may have compensated for the effect that was still missing), then it is refitted on top of them (one search
     round each, on the fit split, from the previous fit or the catalogue's default, whichever fits better); the
     `candidates_per_step` sets that fit best are judged on held-out frames. An effect that only helps together
@@ -260,12 +260,11 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
             return math.nan, math.inf
         return bootstrap_gain(worse, better, target, scale, bootstrap, significance, seed=seed + draw)
 
-    added = 0
-    while remaining and added < max_effects:
+    while remaining and len(chosen) < max_effects:
         if current <= min_gain * gap_before:
             stopped = f"the gap left is below {min_gain:.0%} of the gap before (nothing left to explain)"
             break
-        if added:
+        if chosen:
             screened = []
             for info, solo in remaining:
                 base = refit_each(chosen, around=[solo])
@@ -282,7 +281,7 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         if current - best_gap < min_gain * max(gap_before, 1e-12):
             stopped = f"no remaining effect lowers the held-out gap by {min_gain:.0%} of the gap before"
             break
-        gain, lower = lower_bound(current_stats, best_stats, added)
+        gain, lower = lower_bound(current_stats, best_stats, len(chosen))
         if lower <= 0.0:
             stopped = (f"the best remaining effect ({best_info.name}) lowers the held-out gap by {gain:.3g}, "
                        f"not significantly (one-sided {significance:.0%} lower bound {lower:.3g} <= 0)")
@@ -291,7 +290,6 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         path.append(Step("add", best_info.name, best_gap))
         current, current_stats = best_gap, best_stats
         remaining = [pair for pair in remaining if pair[0].name != best_info.name]
-        added += 1
         if progress:
             progress(f"selected {best_info.name}: held-out gap {best_gap:.4g} (gain {gain:.3g}, one-sided "
                      f"{significance:.0%} lower bound {lower:.3g})")
@@ -299,7 +297,7 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         if not remaining:
             stopped = "every catalogued effect selected"
 
-    while prune and added >= 2:
+    while prune and len(chosen) >= 2:
         # the candidate for removal: the effect whose absence hurts least as the others stand
         dropped = min(chosen, key=lambda e: holdout([other for other in chosen if other is not e])[0])
         # judged with both sides refitted alike: the others were fitted while `dropped` was present, and a refit
@@ -312,11 +310,11 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
         rest = refit_each([e for e in chosen if e.name != dropped.name])
         gap_without, stats_without = holdout(rest)
         cost = gap_without - current
-        if cost >= min_gain * max(gap_before, 1e-12) and lower_bound(stats_without, current_stats, 100 + added)[1] > 0:
+        significant = lower_bound(stats_without, current_stats, 100 + len(chosen))[1] > 0
+        if cost >= min_gain * max(gap_before, 1e-12) and significant:
             break
         chosen, current, current_stats = rest, gap_without, stats_without
         path.append(Step("remove", dropped.name, gap_without))
-        added -= 1
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
 
