@@ -26,6 +26,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from sonar_realism.data import real_oculus_dir  # noqa: E402
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges  # noqa: E402
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint  # noqa: E402
 from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # noqa: E402
@@ -33,7 +34,6 @@ from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # noqa: E402
 GRIDS = ((128, 128), (512, 256))  # (n_ranges, n_beams)
 SAMPLES = (1, 4, 16)
 GOAL_FPS_N4_128 = 40.0
-REAL_DATA = "/work/shared/data/real/oculus_polar_seabed/dataset"
 
 
 def _timed(fn: Callable[[], object], repeats: int) -> float:
@@ -112,12 +112,13 @@ def run() -> list[dict]:
     return rows
 
 
-def diversity(real: str = REAL_DATA, skips_options: tuple[int, ...] = (0, 2, 3), epochs: int = 3,
+def diversity(real: str | None = None, skips_options: tuple[int, ...] = (0, 2, 3), epochs: int = 3,
               max_frames: int = 120) -> list[dict]:
     """Sample diversity with and without skip connections: small models (64 × 64, widths 8-16-32-64) trained
     `epochs` epochs (cycle 1 only) on the first `max_frames` real frames, then 8 samples of each validation
     frame at temperature 1. Reports the mean per-pixel std across samples and its ratio to the pixel std
     of the validation images themselves (1 = samples as different as different frames)."""
+    real = str(real_oculus_dir()) if real is None else real
     from sonar_realism.datasets import load_grid_frames
     from sonar_realism.train import TrainConfig, fit
 

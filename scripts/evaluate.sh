@@ -5,7 +5,7 @@
 # first (it makes runs/sim_train and runs/cdfcvae_default). Pass --seed N to repeat with other scenes and CNN init.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-SHARED="${SHARED:-../shared/data/real}"
+SHARED="${SONAR_REALISM_DATA:-../shared/data}/real"
 SEED="${1:-0}"
 # One thread per process: on 2 shared cores OpenMP's spinning threads made steps up to 10x slower.
 export OMP_NUM_THREADS=1

@@ -4,7 +4,7 @@
 # recording). Epoch limits are small enough for a 2-core CPU; pass --epochs1/--epochs2 to go further on a GPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-REAL="${REAL:-../shared/data/real/oculus_polar_seabed/dataset}"
+REAL="${REAL:-${SONAR_REALISM_DATA:-../shared/data}/real/oculus_polar_seabed/dataset}"
 for scene in constructed organic; do
   sonar-realism simulate --scene "$scene" --n 200 --seed 11 --out "runs/sim_train/$scene" --quiet
 done

@@ -17,7 +17,6 @@ from sonar_realism.frames import uniform_azimuths, uniform_ranges
 from sonar_realism.io import ReadReport, read_frames, write_frames
 
 OCULUS_SAMPLE = Path(__file__).parent / "data" / "three_pings_8bit.raw"
-REAL_OCULUS = Path("/work/shared/data/real/oculus_polar_seabed/dataset/val/images")
 
 
 def make(dtype, shape, seed=0, **kw):
@@ -253,11 +252,11 @@ def test_tiff_pages_float_images_and_content_sniffing(tmp_path):
         list(read_frames(tmp_path / "unknown.bin"))
 
 
-@pytest.mark.skipif(not REAL_OCULUS.is_dir(), reason="real Oculus PNG export not available")
-def test_real_oculus_png_export_reads_as_polar_frames():
+def test_real_oculus_png_export_reads_as_polar_frames(real_oculus):
+    images = real_oculus / "val" / "images"
     report = ReadReport()
-    frames = list(read_frames(REAL_OCULUS, report))
-    assert len(frames) == len(list(REAL_OCULUS.glob("*.png"))) > 50
+    frames = list(read_frames(images, report))
+    assert len(frames) == len(list(images.glob("*.png"))) > 50
     assert all(f.n_beams == 256 and f.intensity.dtype == np.uint8 and "converted_from" not in f.meta for f in frames)
     assert all(f.intensity.max() == 255 for f in frames)  # the export scaled each frame to its maximum
 

@@ -2,7 +2,6 @@
 
 import json
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,7 +13,6 @@ from sonar_realism.geometry import fan_layout, polar_to_fan
 from sonar_realism.io import ReadReport, read_frames, sniff, write_frames
 from sonar_realism.io.fan import detect_fan
 
-ARIS = Path("/work/shared/data/real/marine_debris_watertank/watertank-segmentation/Images")
 RANGES = uniform_ranges(48, 20.0, 1.0)
 BEARINGS = np.arcsin(np.linspace(-0.8, 0.8, 32))
 
@@ -166,9 +164,8 @@ def test_fan_sidecar_on_an_image_that_is_not_a_fan_names_the_missing_key(tmp_pat
         list(read_frames(tmp_path / "flat.png"))
 
 
-@pytest.mark.skipif(not ARIS.is_dir(), reason="ARIS water-tank images not available")
-def test_real_aris_fan_images_read_as_30_degree_polar_frames():
-    frames = read_frames(ARIS)
+def test_real_aris_fan_images_read_as_30_degree_polar_frames(real_aris):
+    frames = read_frames(real_aris / "Images")
     fovs = []
     for _, frame in zip(range(12), frames, strict=False):
         assert frame.meta["converted_from"] == "fan" and frame.intensity.dtype == np.uint8

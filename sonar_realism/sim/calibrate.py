@@ -1,6 +1,6 @@
 """Fit the full-effect simulator's default parameters to real Oculus frames, and show the match before and after.
 
-    python -m sonar_realism.sim.calibrate --real /work/shared/data/real/oculus_polar_seabed/dataset --out docs/img
+    python -m sonar_realism.sim.calibrate --real "$SONAR_REALISM_DATA"/real/oculus_polar_seabed/dataset --out docs/img
 
 The real frames are 8-bit polar images rescaled per frame so that the maximum is 255; simulated frames go through
 the same rescale before they are compared. Four targets, each one number or a short vector:

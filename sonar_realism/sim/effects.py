@@ -14,7 +14,7 @@ stages work on I = A^2 and return sqrt(I). `apply_effects` runs a chosen set in 
 `PIPELINE_ORDER`; `gamma_quantization` is last and turns the result into 8-bit counts.
 
 Defaults marked "calibrated" were fitted to the real Oculus set (389 frames) by
-`python -m sonar_realism.sim.calibrate --real /work/shared/data/real/oculus_polar_seabed/dataset --out docs/img`
+`python -m sonar_realism.sim.calibrate --real "$SONAR_REALISM_DATA"/real/oculus_polar_seabed/dataset --out docs/img`
 (8 default-scene frames, seed 0, 6 pattern-search rounds; see docs/simulator.md); the others are sensor-sheet
 or textbook values that the fit left where they were.
 """
