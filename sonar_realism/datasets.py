@@ -23,7 +23,7 @@ import torch
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
-from sonar_realism.geometry import resample_to_grid
+from sonar_realism.geometry import resample_like, resample_to_grid
 from sonar_realism.io import read_frames, sniff
 
 Normalisation = Literal["frame_max", "full_scale"]
@@ -68,6 +68,17 @@ def to_model_grid(frame: SonarImage, grid: tuple[int, int], how: Normalisation) 
     if (frame.n_ranges, frame.n_beams) != tuple(grid):
         frame = resample_to_grid(frame, grid[0], grid[1])
     return normalise(frame, how)
+
+
+def from_model_grid(frame: SonarImage, images: np.ndarray) -> np.ndarray:
+    """The inverse of `to_model_grid`: float32 images [..., grid rows, grid cols] on `frame`'s own ranges and
+    bearings, [..., frame.n_ranges, frame.n_beams]."""
+    grid = tuple(images.shape[-2:])
+    if (frame.n_ranges, frame.n_beams) == grid:
+        return images.astype(np.float32, copy=False)
+    on_grid = resample_to_grid(frame, *grid).replace(intensity=images.astype(np.float32, copy=False),
+                                                     intensity_scale=1.0)
+    return resample_like(on_grid, frame).intensity.astype(np.float32, copy=False)
 
 
 def recording_sources(path: Path) -> list[Path]:

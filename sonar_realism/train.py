@@ -35,11 +35,25 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
-from sonar_realism.datasets import GridFrames, Normalisation, batches, load_grid_frames, split_by_recording
+from sonar_realism.datasets import (
+    GridFrames,
+    Normalisation,
+    batches,
+    from_model_grid,
+    load_grid_frames,
+    normalise,
+    recording_of,
+    recording_sources,
+    split_by_recording,
+    to_model_grid,
+)
 from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.io import read_frames
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, PerceptualConfig, PerceptualLoss, save_checkpoint
+from sonar_realism.models.speckle import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
+TEXTURE_FIT_FRAMES = 96  # evenly spaced over the training recordings: enough for 129 quantiles in 8 level bins
 
 
 @dataclass(frozen=True)
@@ -57,6 +71,8 @@ class TrainConfig:
     min_improvement: float = 1e-3  # relative drop of the validation loss that counts as progress
     normalisation: Normalisation = "frame_max"
     real_val_recordings: tuple[str, ...] = ()
+    # Train on these real recordings only (empty: all); the others stay unseen, for evaluation.
+    real_recordings: tuple[str, ...] = ()
     val_fraction: float = 0.2
     flip_beams: bool = True
     cycle2: Literal["second_encoder", "shared_encoder"] = "second_encoder"
@@ -129,7 +145,14 @@ class Data:
 
 
 def load_data(path: str | Path, cfg: TrainConfig, by_recording: bool) -> Data:
-    frames = load_grid_frames(path, cfg.model.grid, cfg.normalisation, cfg.max_frames)
+    keep_some = by_recording and bool(cfg.real_recordings)
+    frames = load_grid_frames(path, cfg.model.grid, cfg.normalisation, None if keep_some else cfg.max_frames)
+    if keep_some:
+        kept = np.flatnonzero(np.isin(np.asarray(frames.recordings), cfg.real_recordings))
+        if kept.size == 0:
+            raise ConfigError(f"real_recordings {list(cfg.real_recordings)}: none of them is in {path} (it has "
+                              f"{', '.join(sorted(set(frames.recordings)))})")
+        frames = frames.subset(kept[:cfg.max_frames])
     if len(frames) < 2:
         raise ConfigError(f"{path}: need at least 2 frames (training and validation), found {len(frames)}")
     if by_recording:
@@ -209,7 +232,7 @@ class Trainer:
             batch = self._to_device(batch[self.rank::self.world] if self.world > 1 else batch)
             with self._autocast():
                 x_hat, mu, logvar = net(batch, self._domain())
-                total, perceptual, kl = self.loss(x_hat, batch, mu, logvar)
+                total, perceptual, kl = self.loss(x_hat, self.model.reconstruction_target(batch), mu, logvar)
             self.optimizer.zero_grad(set_to_none=True)
             total.backward()
             self.optimizer.step()
@@ -229,7 +252,8 @@ class Trainer:
             batch = self._to_device(batch)
             with self._autocast():
                 mu, logvar, skips = encoder(batch)
-                total, perceptual, kl = self.loss(self.model.decoder(mu, skips), batch, mu, logvar)
+                total, perceptual, kl = self.loss(self.model.decoder(mu, skips),
+                                                  self.model.reconstruction_target(batch), mu, logvar)
             totals += len(batch) * np.array([float(total), float(perceptual), float(kl)])
             count += len(batch)
         mean = totals / count
@@ -259,10 +283,12 @@ class Trainer:
                 self.save_state()
         return True
 
-    def finish_cycle1(self) -> None:
-        """Keep cycle 1's best weights and start cycle 2 from them."""
+    def finish_cycle1(self, real_dir: str | Path, train_recordings: set[str]) -> None:
+        """Keep cycle 1's best weights, fit the texture the decoder leaves out, and start cycle 2 from them."""
         if self.best:
             self.model.load_state_dict(self.best)
+        if self.model.texture is not None:
+            self.fit_texture(real_dir, train_recordings)
         if self.rank == 0:
             save_checkpoint(self.model, self.out / "cycle1.safetensors", self._checkpoint_info(),
                             self.cfg.half_precision_checkpoint)
@@ -271,6 +297,25 @@ class Trainer:
         self.optimizer = self._make_optimizer()
         if self.rank == 0:
             self.save_state()
+
+    @torch.no_grad()
+    def fit_texture(self, real_dir: str | Path, train_recordings: set[str]) -> None:
+        """Fit the speckle statistics (models/speckle.py) of real training frames at their own resolution
+        around the decoder's reconstruction of each (the posterior mean): the texture it cannot express."""
+        frames = [frame for source in recording_sources(Path(real_dir)) for frame in read_frames(source)
+                  if recording_of(frame, source.name) in train_recordings and frame.intensity.ndim == 2]
+        if not frames:
+            raise ConfigError(f"{real_dir}: no single-sample training frames to fit the texture on")
+        picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
+        self.model.eval()
+        images, means = [], []
+        for frame in picked:
+            x = torch.from_numpy(to_model_grid(frame, self.cfg.model.grid, self.cfg.normalisation))[None, None]
+            mu, _, skips = self.model.encoder_real(x.to(self.device))
+            mean = self.model.decoder(mu, skips)[0, 0].float().cpu().numpy()
+            means.append(np.clip(from_model_grid(frame, mean), 0.0, 1.0))
+            images.append(normalise(frame, "frame_max"))
+        self.model.texture.set_fit(*fit_speckle(images, means, seed=self.cfg.seed))
 
     # --- persistence
     def _checkpoint_info(self) -> dict[str, Any]:
@@ -372,7 +417,7 @@ def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out:
     if trainer.cycle == 1:
         if not trainer.run_cycle(real, cfg.epochs1, budget):
             return {"finished": False}
-        trainer.finish_cycle1()
+        trainer.finish_cycle1(real_dir, set(real.train.recordings))
     if sim is not None and not trainer.run_cycle(sim, cfg.epochs2, budget):
         return {"finished": False}
     return {"finished": True, **(trainer.write_outputs(real, sim) if trainer.rank == 0 else {})}

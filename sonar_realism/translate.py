@@ -22,10 +22,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from sonar_realism.datasets import to_model_grid
+from sonar_realism.datasets import from_model_grid, to_model_grid
 from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.frames import SonarImage
-from sonar_realism.geometry import resample_like, resample_to_grid
 from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "assets" / "cdfcvae_default.safetensors"
@@ -75,14 +74,20 @@ class Translator:
         provenance = {"model": "cdfcvae", "checkpoint": self.checkpoint.name,
                       "checkpoint_sha256": self.checkpoint_sha256, "temperature": float(temperature),
                       "seed": seed, "n_samples": n}
+        # Speckle is sampled on the CPU at each frame's own resolution from a generator of its own, so a seeded
+        # call gives the same texture on any device. Temperature 0 asks for the posterior mean: no speckle.
+        texture_generator = None
+        if self.model.texture is not None and temperature > 0:
+            texture_generator = torch.Generator().manual_seed(seed ^ 0x5EC1E)
         out: list[SonarImage] = []
         for start in range(0, len(frames), _FRAMES_PER_PASS):
             out.extend(self._translate_chunk(frames[start:start + _FRAMES_PER_PASS], n, temperature, generator,
-                                             provenance))
+                                             texture_generator, provenance))
         return out
 
     def _translate_chunk(self, frames: Sequence[SonarImage], n: int, temperature: float,
-                         generator: torch.Generator, provenance: dict[str, Any]) -> list[SonarImage]:
+                         generator: torch.Generator, texture_generator: torch.Generator | None,
+                         provenance: dict[str, Any]) -> list[SonarImage]:
         for frame in frames:
             if frame.intensity.ndim != 2:
                 raise FrameError(f"translate: frame seq {frame.seq} already has {frame.n_samples} samples; "
@@ -95,19 +100,18 @@ class Translator:
                                       else nullcontext()):
             samples = self.model.sample(x, n, temperature, generator)
         samples_np = samples.float().clamp(0.0, 1.0).cpu().numpy()
-        return [self._back_to_input_geometry(frame, samples_np[i], provenance) for i, frame in enumerate(frames)]
+        return [self._back_to_input_geometry(frame, samples_np[i], provenance, texture_generator)
+                for i, frame in enumerate(frames)]
 
-    def _back_to_input_geometry(self, frame: SonarImage, samples: np.ndarray, provenance: dict[str, Any]
-                                ) -> SonarImage:
+    def _back_to_input_geometry(self, frame: SonarImage, samples: np.ndarray, provenance: dict[str, Any],
+                                texture_generator: torch.Generator | None) -> SonarImage:
         meta = dict(frame.meta)
         meta["provenance"] = {**meta.get("provenance", {}), "translator": provenance} \
             if isinstance(meta.get("provenance"), dict) else {"translator": provenance}
-        on_grid = resample_to_grid(frame, *self.grid) if (frame.n_ranges, frame.n_beams) != self.grid else frame
-        result = on_grid.replace(intensity=samples.astype(np.float32), intensity_scale=1.0, meta=meta)
-        if not result.same_geometry(frame):
-            result = resample_like(result, frame)
-        intensity = np.clip(result.intensity.astype(np.float32, copy=False), 0.0, 1.0)
-        return result.replace(intensity=intensity, intensity_scale=1.0)
+        intensity = np.clip(from_model_grid(frame, samples), 0.0, 1.0)
+        if texture_generator is not None:
+            intensity = self.model.texture.sample(intensity, texture_generator)
+        return frame.replace(intensity=intensity, intensity_scale=1.0, meta=meta)
 
 
 def load_translator(path: str | Path, device: str = "auto") -> Any:

@@ -135,3 +135,25 @@ def test_cli_flags_override_the_json_config_and_unknown_keys_are_rejected(tmp_pa
         config_from_args(args)
     with pytest.raises(ConfigError, match="grid"):
         from_dict(TrainConfig, {"model": {"grid": [100, 128]}})
+
+
+def test_texture_model_trains_on_the_chosen_recordings_and_fits_speckle_after_cycle_1(tmp_path):
+    real, sim = tmp_path / "real", tmp_path / "sim"
+    write_frames([*_frames(6, "rec_a", 0, shape=(64, 64)), *_frames(4, "rec_b", 1, shape=(64, 64))], real)
+    write_frames(_frames(6, "sim", 2, shape=(64, 64)), sim)
+    model = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1,
+                          dropout=0.0, output_stride=2, upsample="resize_conv", texture="speckle")
+    cfg = TrainConfig(model=model, perceptual=TINY_LOSS, batch_size=4, epochs1=1, epochs2=1,
+                      real_recordings=("rec_a",))
+    out = tmp_path / "run"
+    assert fit(cfg, real, sim, out, device="cpu", progress=False)["finished"]
+    record = json.loads((out / "early_stopping.json").read_text())
+    assert record["n_real"] == [5, 1] and "single recording" in record["real_split"]
+    trained, _ = load_checkpoint(out / "model.safetensors")
+    assert trained.texture.is_fitted
+    # Rayleigh speckle around the decoder's mean: the fitted ratios spread well beyond a flat image's.
+    quantiles = trained.texture.ratio_quantiles.numpy()
+    assert np.median(quantiles[:, -20] - quantiles[:, 20]) > 0.5
+    with pytest.raises(ConfigError, match="rec_z"):
+        fit(TrainConfig(model=model, perceptual=TINY_LOSS, epochs1=1, real_recordings=("rec_z",)), real, None,
+            tmp_path / "run2", device="cpu", progress=False)

@@ -109,3 +109,35 @@ def test_shipped_checkpoint_loads_and_translates():
     frame = _frame(shape=(96, 64))
     out = translator.translate([frame], n=2, seed=0)[0]
     assert out.intensity.shape == (2, 96, 64) and model.cfg.grid == translator.grid
+
+
+@pytest.fixture
+def texture_checkpoint(tmp_path):
+    import torch
+
+    from sonar_realism.models.speckle import fit_speckle
+
+    torch.manual_seed(0)
+    config = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8), latent_dim=8, bottleneck_hw=(2, 2), skips=1,
+                           output_stride=2, upsample="resize_conv", texture="speckle")
+    model = CDFCVAE(config)
+    rng = np.random.default_rng(0)
+    model.texture.set_fit(*fit_speckle([rng.gamma(2.0, 0.5, (64, 64)) for _ in range(3)], [np.ones((64, 64))] * 3))
+    return save_checkpoint(model, tmp_path / "texture.safetensors", {"normalisation": "frame_max"})
+
+
+def test_texture_model_samples_carry_speckle_and_temperature_zero_gives_the_mean(texture_checkpoint):
+    translator = Translator.from_checkpoint(texture_checkpoint, device="cpu")
+    frames = [_frame(0, shape=(80, 64)), _frame(1, shape=(80, 64), seed=1)]
+    speckled = translator.translate(frames, n=3, seed=5)
+    mean = translator.translate(frames, n=2, temperature=0.0, seed=5)
+    for noisy, smooth, frame in zip(speckled, mean, frames, strict=True):
+        assert noisy.intensity.shape == (3, 80, 64) and noisy.same_geometry(frame)
+        # Per-pixel texture: neighbouring cells of one sample differ far more than the smooth mean's do.
+        roughness = lambda x: np.abs(np.diff(x, axis=-1)).mean()  # noqa: E731
+        assert roughness(noisy.intensity[0]) > 3 * roughness(smooth.intensity[0])
+        assert np.abs(noisy.intensity[0] - noisy.intensity[1]).mean() > 0.01
+        np.testing.assert_array_equal(smooth.intensity[0], smooth.intensity[1])
+    again = translator.translate(frames, n=3, seed=5)
+    np.testing.assert_array_equal(again[1].intensity, speckled[1].intensity)
+    assert np.abs(translator.translate(frames, n=3, seed=6)[1].intensity - speckled[1].intensity).mean() > 0.01

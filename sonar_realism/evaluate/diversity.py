@@ -21,6 +21,8 @@ class DiversityResult:
     between_inputs_l1: float  # mean |a - b| between first samples of different inputs
     relative: float  # pairwise_l1 / between_inputs_l1
     pixel_std: float  # mean per-pixel standard deviation over the samples of one input
+    between_inputs_std: float  # mean per-pixel standard deviation over the first samples of different inputs
+    std_ratio: float  # pixel_std / between_inputs_std: how much of a scene change one resampling is
 
 
 def _mean_pairwise_l1(stack: np.ndarray) -> float:
@@ -36,6 +38,9 @@ def sample_diversity(samples: np.ndarray) -> DiversityResult:
         raise ConfigError(f"diversity: need [inputs >= 2, samples >= 2, rows, cols], got {samples.shape}")
     within = float(np.mean([_mean_pairwise_l1(stack) for stack in samples]))
     between = _mean_pairwise_l1(samples[:, 0])
+    pixel_std = float(samples.std(axis=1).mean())
+    between_std = float(samples[:, 0].std(axis=0).mean())
     return DiversityResult(pairwise_l1=within, between_inputs_l1=between,
-                           relative=within / between if between > 0 else 0.0,
-                           pixel_std=float(samples.std(axis=1).mean()))
+                           relative=within / between if between > 0 else 0.0, pixel_std=pixel_std,
+                           between_inputs_std=between_std,
+                           std_ratio=pixel_std / between_std if between_std > 0 else 0.0)

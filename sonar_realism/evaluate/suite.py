@@ -19,7 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from sonar_realism.config import to_dict
-from sonar_realism.datasets import to_model_grid
+from sonar_realism.datasets import normalise, to_model_grid
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.diversity import sample_diversity
 from sonar_realism.evaluate.kid import kernel_inception_distance
@@ -36,7 +36,7 @@ from sonar_realism.evaluate.texture import (
     speckle_statistics,
     spectral_distance,
 )
-from sonar_realism.evaluate.two_sample import classifier_two_sample_test
+from sonar_realism.evaluate.two_sample import TextureTestConfig, classifier_two_sample_test, texture_two_sample_test
 from sonar_realism.frames import SonarImage
 from sonar_realism.models.realism_cnn import RealismCNNConfig, embeddings, realism_scores, train_classifier
 
@@ -85,16 +85,18 @@ def _halves(n: int) -> tuple[np.ndarray, np.ndarray]:
     return first, np.arange(n // 2, n)
 
 
-def _translate(translator: Translator, frames: list[SonarImage], config: SuiteConfig, name: str) -> np.ndarray:
-    """Outputs of one translator on the model grid, [n_inputs, n_samples, rows, cols]."""
-    out = []
+def _translate(translator: Translator, frames: list[SonarImage], config: SuiteConfig, name: str
+               ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Outputs of one translator on the model grid, [n_inputs, n_samples, rows, cols], and each input's first
+    sample at its own resolution (frame-max scaled), for the texture test."""
+    out, native = [], []
     batches = [frames[i:i + config.translate_batch] for i in range(0, len(frames), config.translate_batch)]
     for index, batch in enumerate(progress(batches, f"translate ({name})")):
         results = translator.translate(batch, n=config.n_samples, seed=config.seed + index)
         for result in results:
-            grid = to_model_grid(result, config.grid, "frame_max").reshape(-1, *config.grid)
-            out.append(grid)
-    return np.stack(out)
+            out.append(to_model_grid(result, config.grid, "frame_max").reshape(-1, *config.grid))
+            native.append(normalise(result.sample(0), "frame_max"))
+    return np.stack(out), native
 
 
 def family_gaps(images: np.ndarray, reference: np.ndarray) -> dict[str, float] | None:
@@ -109,16 +111,19 @@ def family_gaps(images: np.ndarray, reference: np.ndarray) -> dict[str, float] |
                                   / (real[family].std(axis=0) + 1e-3))) for family in real}
 
 
-def _method_metrics(outputs: np.ndarray, inputs: np.ndarray, masks: list[np.ndarray | None], reference: np.ndarray,
+def _method_metrics(outputs: np.ndarray, native: list[np.ndarray], inputs: np.ndarray,
+                    masks: list[np.ndarray | None], reference: np.ndarray, reference_native: list[np.ndarray],
                     reference_features: np.ndarray, cnn: Any, config: SuiteConfig, name: str) -> dict[str, Any]:
     first = outputs[:, 0]
     c2st = classifier_two_sample_test(reference, first, folds=config.c2st_folds, seed=config.seed)
+    texture_c2st = texture_two_sample_test(reference_native, native, TextureTestConfig(seed=config.seed))
     kid = kernel_inception_distance(reference_features, embeddings(cnn, first), n_subsets=config.kid_subsets,
                                     seed=config.seed)
     spectra, real_spectra = power_spectra(first), power_spectra(reference)
     ious = [mask_iou(mask, out) for mask, out in zip(masks, first, strict=True) if mask is not None and mask.any()]
     metrics: dict[str, Any] = {
         "c2st": dataclasses.asdict(c2st),
+        "texture_c2st": dataclasses.asdict(texture_c2st),
         "kid": dataclasses.asdict(kid),
         "spectral_distance": spectral_distance(spectra, real_spectra),
         "checkerboard": checkerboard_score(spectra),
@@ -146,6 +151,8 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
         raise ConfigError(f"need at least {2 * config.c2st_folds} real frames, got {len(real)}")
     real_cnn_idx, real_ref_idx = _halves(len(real))
     reference = real[real_ref_idx]
+    single_real = [frame.sample(0) if frame.intensity.ndim == 3 else frame for frame in real_frames]
+    reference_native = [normalise(single_real[i], "frame_max") for i in real_ref_idx[real_ref_idx < len(single_real)]]
 
     categories = sorted({item.category for item in sim_inputs})
     train_sim, scored = [], []
@@ -171,8 +178,9 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     masks = [mask_to_grid(item.mask, config.grid) if item.mask is not None else None for item in scored]
     outputs = {RAW_SIM: inputs[:, None]}
     frames = [item.frame.sample(0) if item.frame.intensity.ndim == 3 else item.frame for item in scored]
+    natives = {RAW_SIM: [normalise(frame, "frame_max") for frame in frames]}
     for name, translator in translators.items():
-        outputs[name] = _translate(translator, frames, config, name)
+        outputs[name], natives[name] = _translate(translator, frames, config, name)
 
     labels = np.array([item.category for item in scored])
     table: dict[str, dict[str, Any]] = {category: {} for category in [*categories, "all"]}
@@ -186,7 +194,8 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     reference_features = embeddings(cnn, reference)
     methods = {}
     for name in progress(list(outputs), "metrics"):
-        methods[name] = _method_metrics(outputs[name], inputs, masks, reference, reference_features, cnn, config, name)
+        methods[name] = _method_metrics(outputs[name], natives[name], inputs, masks, reference, reference_native,
+                                        reference_features, cnn, config, name)
 
     spectra = {name: power_spectra(out[:, 0]) for name, out in outputs.items()}
     spectra["real"] = power_spectra(reference)

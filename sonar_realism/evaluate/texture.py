@@ -8,6 +8,8 @@
   K-distribution shape nu (moments), on amplitudes divided by their local mean so that objects and
   shadows do not count as speckle. Intensity statistics change with range (TVG, grazing angle), hence bands.
 * Intensity histogram and its earth mover's distance to the real one.
+* Grain: lag-1 correlation of the texture (image minus its local mean) along range and across beams, on frames
+  at their own resolution.
 """
 
 from __future__ import annotations
@@ -163,3 +165,24 @@ def histogram_distance(images_a: np.ndarray, images_b: np.ndarray) -> float:
     _, pb = intensity_histogram(images_b)
     width = 1.0 / HISTOGRAM_BINS
     return float(np.abs(np.cumsum(pa - pb) * width).sum() * width)
+
+
+@dataclass(frozen=True)
+class Grain:
+    along_range: float  # lag-1 correlation of neighbouring range bins
+    across_beams: float  # lag-1 correlation of neighbouring beams
+
+
+def grain(frames: list[np.ndarray]) -> Grain:
+    """Mean lag-1 correlations of each frame's texture (frame minus its Gaussian local mean, sigma 3 bins)."""
+    if not frames:
+        raise ConfigError("grain: no frames")
+    along, across = [], []
+    for frame in frames:
+        image = np.asarray(frame, np.float32)
+        texture = (image - cv2.GaussianBlur(image, (0, 0), 3.0)).astype(np.float64)
+        texture -= texture.mean()
+        power = float((texture ** 2).mean()) + 1e-18
+        along.append(float((texture[1:] * texture[:-1]).mean()) / power)
+        across.append(float((texture[:, 1:] * texture[:, :-1]).mean()) / power)
+    return Grain(along_range=float(np.mean(along)), across_beams=float(np.mean(across)))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -32,6 +33,7 @@ from torch import nn
 
 from sonar_realism.config import from_dict, to_dict
 from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.models.speckle import SpeckleField
 from sonar_realism.models.vgg import RELU_INDEX, VGGFeatures
 
 CHECKPOINT_FORMAT = "sonar_realism.cdfcvae"
@@ -52,6 +54,17 @@ class CDFCVAEConfig:
     dropout: float = 0.1
     leaky_slope: float = 0.2
     upsample: Literal["transposed", "resize_conv"] = "transposed"
+    # 2 (or 4, ...): the decoder stops at grid / output_stride and its output is resized up bilinearly. A
+    # mean field needs no full-resolution convolutions; the texture comes from `texture`.
+    output_stride: int = 1
+    # "speckle": samples carry fitted sensor speckle (models/speckle.py) on the mean field the decoder gives,
+    # and the training target is the frame's local mean; "none": the paper's decoder output as is.
+    texture: Literal["none", "speckle"] = "none"
+
+    @property
+    def decoded_levels(self) -> int:
+        """Upsampling steps the decoder takes (the encoder's level count minus the output stride's)."""
+        return len(self.widths) - 1 - int(math.log2(self.output_stride))
 
     def validate(self) -> None:
         if len(self.widths) < 2 or any(w < 1 for w in self.widths):
@@ -60,8 +73,12 @@ class CDFCVAEConfig:
         if any(g < factor or g % factor for g in self.grid):
             raise ConfigError(f"model.grid {self.grid}: both sides must be multiples of {factor} "
                               f"(2 ** (levels - 1) for {len(self.widths)} levels)")
-        if not 0 <= self.skips <= len(self.widths) - 1:
-            raise ConfigError(f"model.skips {self.skips}: between 0 and {len(self.widths) - 1}")
+        if self.output_stride < 1 or self.output_stride & (self.output_stride - 1) or self.decoded_levels < 0:
+            raise ConfigError(f"model.output_stride {self.output_stride}: a power of two no larger than "
+                              f"{factor}")
+        if not 0 <= self.skips <= self.decoded_levels:
+            raise ConfigError(f"model.skips {self.skips}: between 0 and {self.decoded_levels} (the decoder's "
+                              "upsampling steps)")
         if self.latent_dim < 1 or min(self.bottleneck_hw) < 1:
             raise ConfigError("model.latent_dim and model.bottleneck_hw must be positive")
         if not 0.0 <= self.dropout < 1.0:
@@ -122,15 +139,17 @@ class Decoder(nn.Module):
         widths, slope = cfg.widths, cfg.leaky_slope
         self.bottleneck_hw = cfg.bottleneck_hw
         self.deep_hw = tuple(g // 2 ** (len(widths) - 1) for g in cfg.grid)
+        self.grid = cfg.grid
         self.latent_to_map = nn.Linear(cfg.latent_dim, widths[-1] * cfg.bottleneck_hw[0] * cfg.bottleneck_hw[1])
         self.act = nn.LeakyReLU(slope)
         self.deep = _conv(widths[-1], widths[-1], slope)
         n_up = len(widths) - 1
+        lowest = n_up - cfg.decoded_levels  # the finest level the decoder reaches
         # Skip connections are counted from the deepest decoder level upwards.
         self.skip_levels = set(range(n_up - 1, n_up - 1 - cfg.skips, -1))
         self.ups = nn.ModuleList()
         self.fuse = nn.ModuleList()
-        for level in range(n_up - 1, -1, -1):
+        for level in range(n_up - 1, lowest - 1, -1):
             c_in, c_out = widths[level + 1], widths[level]
             if cfg.upsample == "transposed":
                 up: nn.Module = nn.Sequential(nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1),
@@ -140,21 +159,24 @@ class Decoder(nn.Module):
             self.ups.append(up)
             self.fuse.append(_conv(2 * c_out if level in self.skip_levels else c_out, c_out, slope))
         self.dropout = nn.Dropout2d(cfg.dropout)
-        self.out = nn.Conv2d(widths[0], 1, 1)
+        self.out = nn.Conv2d(widths[lowest], 1, 1)
 
     def forward(self, z: torch.Tensor, skips: list[torch.Tensor]) -> torch.Tensor:
         x = self.act(self.latent_to_map(z)).view(z.shape[0], -1, *self.bottleneck_hw)
         if tuple(x.shape[-2:]) != self.deep_hw:
             x = F.interpolate(x, size=self.deep_hw, mode="bilinear", align_corners=False)
         x = self.deep(x)
-        n_up = len(self.ups)
+        deepest = len(skips) - 1
         for step, (up, fuse) in enumerate(zip(self.ups, self.fuse, strict=True)):
-            level = n_up - 1 - step
+            level = deepest - 1 - step
             x = up(x)
             if level in self.skip_levels:
                 x = torch.cat([x, skips[level]], dim=1)
             x = self.dropout(fuse(x))
-        return torch.sigmoid(self.out(x))
+        x = self.out(x)
+        if tuple(x.shape[-2:]) != tuple(self.grid):
+            x = F.interpolate(x, size=self.grid, mode="bilinear", align_corners=False)
+        return torch.sigmoid(x)
 
 
 class CDFCVAE(nn.Module):
@@ -167,6 +189,16 @@ class CDFCVAE(nn.Module):
         self.encoder_real = Encoder(cfg)
         self.encoder_sim = Encoder(cfg)
         self.decoder = Decoder(cfg)
+        self.texture = SpeckleField() if cfg.texture == "speckle" else None
+        self.register_buffer("target_blur", _gaussian_kernel(TARGET_BLUR_SIGMA), persistent=False)
+
+    def reconstruction_target(self, x: torch.Tensor) -> torch.Tensor:
+        """What the decoder learns to output: the frame itself, or (texture "speckle") its local mean, since
+        the speckle around that mean is sampled, not decoded."""
+        if self.texture is None:
+            return x
+        pad = self.target_blur.shape[-1] // 2
+        return F.conv2d(F.pad(x, (pad, pad, pad, pad), mode="replicate"), self.target_blur.to(x.dtype))
 
     def encoder(self, domain: Literal["real", "sim"]) -> Encoder:
         return self.encoder_real if domain == "real" else self.encoder_sim
@@ -192,6 +224,16 @@ class CDFCVAE(nn.Module):
         z = (mu[:, None] + temperature * torch.exp(0.5 * logvar)[:, None] * eps).flatten(0, 1)
         repeated = [s.repeat_interleave(n, dim=0) for s in skips]
         return self.decoder(z, repeated).view(batch, n, *x.shape[-2:])
+
+
+TARGET_BLUR_SIGMA = 1.0  # grid cells: what a mean field on the model grid can hold
+
+
+def _gaussian_kernel(sigma: float) -> torch.Tensor:
+    taps = torch.arange(-3 * int(math.ceil(sigma)), 3 * int(math.ceil(sigma)) + 1, dtype=torch.float32)
+    line = torch.exp(-0.5 * (taps / sigma) ** 2)
+    line = line / line.sum()
+    return (line[:, None] * line[None, :])[None, None]
 
 
 def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,88 @@
+"""The fitted speckle layer: it recovers a known marginal and grain, samples differ, and it travels in checkpoints."""
+
+import numpy as np
+import pytest
+import torch
+
+from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.texture import grain
+from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
+from sonar_realism.models.speckle import EXPORT_LEVELS, SpeckleField, fit_speckle
+
+
+def correlated_speckle(shape, n, seed, smear_beams):
+    """Gamma (shape 4) intensity speckle made correlated across beams by a [1, smear] box filter."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(n):
+        raw = rng.gamma(4.0, 0.25, (shape[0], shape[1] + smear_beams - 1))
+        smeared = np.stack([raw[:, j:j + shape[1]] for j in range(smear_beams)]).mean(axis=0)
+        frames.append(smeared / smeared.mean())
+    return frames
+
+
+def fitted_on(frames, means):
+    field = SpeckleField()
+    field.set_fit(*fit_speckle(frames, means))
+    return field
+
+
+def test_fit_then_sample_reproduces_the_marginal_and_the_anisotropic_grain():
+    ramp = np.linspace(0.2, 0.8, 128)[:, None] * np.ones((1, 96))
+    texture = correlated_speckle((128, 96), 12, seed=0, smear_beams=3)
+    real = [ramp * t for t in texture]
+    field = fitted_on([r / r.max() for r in real], [ramp / (ramp * t).max() for t in texture])
+    samples = field.sample(np.repeat(ramp[None], 12, axis=0), torch.Generator().manual_seed(1))
+    real_scaled = [r / r.max() for r in real]
+    real_grain, sample_grain = grain(real_scaled), grain(list(samples))
+    # Smearing across beams correlates neighbouring beams, not neighbouring ranges; the fit must keep that.
+    assert real_grain.across_beams > real_grain.along_range + 0.2
+    assert sample_grain.across_beams == pytest.approx(real_grain.across_beams, abs=0.1)
+    assert sample_grain.along_range == pytest.approx(real_grain.along_range, abs=0.1)
+    ratio_real = np.concatenate([(r / ramp).ravel() for r in real_scaled])
+    ratio_sample = np.concatenate([(s / ramp).ravel() for s in samples])
+    contrast = lambda x: x.std() / x.mean()  # noqa: E731
+    assert contrast(ratio_sample) == pytest.approx(contrast(ratio_real), rel=0.15)
+
+
+def test_samples_are_max_scaled_8_bit_and_differ_between_draws():
+    field = fitted_on(correlated_speckle((64, 64), 4, seed=2, smear_beams=1), [np.ones((64, 64))] * 4)
+    mean = np.full((3, 80, 72), 0.5, np.float32)
+    samples = field.sample(mean, torch.Generator().manual_seed(0))
+    assert samples.shape == (3, 80, 72) and samples.dtype == np.float32
+    assert np.allclose(samples.max(axis=(1, 2)), 1.0)
+    np.testing.assert_allclose(samples * EXPORT_LEVELS, np.round(samples * EXPORT_LEVELS), atol=1e-4)
+    assert np.abs(samples[0] - samples[1]).mean() > 0.02
+    again = field.sample(mean, torch.Generator().manual_seed(0))
+    np.testing.assert_array_equal(samples, again)
+
+
+def test_unfitted_field_and_bad_fit_inputs_are_refused():
+    with pytest.raises(ConfigError, match="never fitted"):
+        SpeckleField().sample(np.ones((1, 64, 64), np.float32), None)
+    with pytest.raises(ConfigError, match="one mean field each"):
+        fit_speckle([np.ones((64, 64))], [])
+    with pytest.raises(ConfigError, match="frame 0"):
+        fit_speckle([np.ones((64, 64))], [np.ones((64, 65))])
+
+
+def test_texture_statistics_travel_in_the_checkpoint(tmp_path):
+    config = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8), latent_dim=4, skips=1, output_stride=2,
+                           upsample="resize_conv", texture="speckle")
+    model = CDFCVAE(config)
+    model.texture.set_fit(*fit_speckle(correlated_speckle((64, 64), 3, seed=3, smear_beams=2),
+                                       [np.ones((64, 64))] * 3))
+    path = save_checkpoint(model, tmp_path / "m.safetensors")
+    loaded, _ = load_checkpoint(path)
+    assert loaded.texture.is_fitted
+    for name in ("level_edges", "ratio_quantiles", "kernel"):
+        torch.testing.assert_close(getattr(loaded.texture, name), getattr(model.texture, name))
+    # The decoder stops at half the grid and is resized up: the output keeps the grid's shape.
+    assert loaded(torch.rand(2, 1, 32, 32))[0].shape == (2, 1, 32, 32)
+
+
+def test_output_stride_must_leave_the_decoder_a_level_and_fit_the_skips():
+    with pytest.raises(ConfigError, match="output_stride"):
+        CDFCVAEConfig(widths=(4, 8, 8), output_stride=3).validate()
+    with pytest.raises(ConfigError, match="skips"):
+        CDFCVAEConfig(widths=(4, 8, 8), skips=2, output_stride=2).validate()
