@@ -90,8 +90,9 @@ class ImageSidecar:
             raise ConfigError(f'{fan_keys[0]}: {", ".join(fan_keys)} only apply to "kind": "fan"')
 
 
-def load_sidecar(image_path: Path) -> tuple[ImageSidecar | None, str]:
-    """The sidecar of one image (its own `<stem>.json` merged over the folder's sonar.json) and where it came from."""
+def load_sidecar(image_path: Path, overrides: dict[str, Any] | None = None) -> tuple[ImageSidecar | None, str]:
+    """The sidecar of one image (its own `<stem>.json` merged over the folder's sonar.json, `overrides` over
+    both) and where it came from."""
     merged: dict[str, Any] = {}
     sources = []
     for candidate in (image_path.parent / FOLDER_SIDECAR_NAME, image_path.with_suffix(".json")):
@@ -104,6 +105,9 @@ def load_sidecar(image_path: Path) -> tuple[ImageSidecar | None, str]:
                 raise FormatError(str(candidate), "sidecar", "expected a JSON object")
             merged.update(data)
             sources.append(str(candidate))
+    if overrides:
+        merged.update(overrides)
+        sources.append("options")
     if not sources:
         return None, ""
     source = " + ".join(sources)

@@ -34,7 +34,7 @@ import numpy as np
 from sonar_realism.errors import FormatError, FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import fan
-from sonar_realism.io.common import build_frame, json_default, load_sidecar, polar_frame
+from sonar_realism.io.common import ImageSidecar, build_frame, json_default, load_sidecar, polar_frame
 from sonar_realism.io.report import ReadReport
 
 INDEX_NAME = "frames.jsonl"
@@ -258,16 +258,20 @@ def read_image_file(path: Path, report: ReadReport, position: int = 0) -> Iterat
         meta: dict[str, Any] = {"source": path.name}
         if colour_note:
             meta["colour_converted"] = colour_note
-        if sidecar is not None and sidecar.meta:
-            meta.update(sidecar.meta)
-        kind = sidecar.kind if sidecar is not None else None
-        detected = fan.detect_fan(intensity) if kind != "polar" else None
-        if kind == "fan" or (kind is None and detected is not None):
-            frame = fan.fan_image_to_frame(intensity, path, sidecar, sidecar_source, seq, meta, detected)
-        else:
-            frame = polar_frame(intensity, path, sidecar, sidecar_source, seq, meta)
         report.frames += 1
-        yield frame
+        yield image_to_frame(intensity, path, sidecar, sidecar_source, seq, meta)
+
+
+def image_to_frame(intensity: np.ndarray, path: Path, sidecar: ImageSidecar | None, sidecar_source: str, seq: int,
+                   meta: dict[str, Any]) -> SonarImage:
+    """One [rows, cols] image as a frame: a fan (the sidecar says so, or it looks like one) or a polar image."""
+    if sidecar is not None and sidecar.meta:
+        meta = {**meta, **sidecar.meta}
+    kind = sidecar.kind if sidecar is not None else None
+    detected = fan.detect_fan(intensity) if kind != "polar" else None
+    if kind == "fan" or (kind is None and detected is not None):
+        return fan.fan_image_to_frame(intensity, path, sidecar, sidecar_source, seq, meta, detected)
+    return polar_frame(intensity, path, sidecar, sidecar_source, seq, meta)
 
 
 def _decode_pages(path: Path) -> list[np.ndarray]:
