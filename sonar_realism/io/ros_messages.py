@@ -27,6 +27,7 @@ from rosbags.typesys.store import Typestore
 
 from sonar_realism.errors import FormatError, UnsupportedFormatError
 from sonar_realism.frames import SonarImage
+from sonar_realism.io.common import build_frame, json_default
 
 PROJECTED_SONAR_IMAGE = "marine_acoustic_msgs/msg/ProjectedSonarImage"
 LEGACY_PROJECTED_SONAR_IMAGE = "acoustic_msgs/msg/ProjectedSonarImage"  # the package's name before 2.0
@@ -118,7 +119,7 @@ class FrameInfo:
 
     def to_json(self) -> str:
         fields = {key: value for key, value in self.__dict__.items() if value is not None}
-        return json.dumps(fields, allow_nan=False, default=_json_default)
+        return json.dumps(fields, allow_nan=False, default=json_default)
 
     @staticmethod
     def from_json(text: str, source: str) -> FrameInfo:
@@ -127,14 +128,6 @@ class FrameInfo:
             return FrameInfo(**fields)
         except (json.JSONDecodeError, TypeError) as exc:
             raise FormatError(source, "frame_info", f"not a frame info record ({exc})") from exc
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON-able")
 
 
 def stamp_ns(header: Any) -> int:
@@ -172,7 +165,7 @@ def sonar_image_to_frame(message: Any, source: str, seq: int) -> SonarImage:
     if converted:
         meta["ros_sample_dtype"] = converted
     header = message.header
-    return _frame(source, intensity=intensity, ranges_m=ranges, azimuths_rad=azimuths,
+    return build_frame(source, intensity=intensity, ranges_m=ranges, azimuths_rad=azimuths,
                   stamp_ns=stamp_ns(header), seq=int(getattr(header, "seq", seq)), frame_id=header.frame_id,
                   intensity_scale=scale, meta=meta)
 
@@ -192,18 +185,6 @@ def _supported_samples(samples: np.ndarray, source: str) -> tuple[np.ndarray, fl
         raise UnsupportedFormatError(source, "image.data", f"{native.dtype.name} samples beyond 2^53 cannot be "
                                                            "held exactly")
     return native.astype(np.float64), full_scale, native.dtype.name
-
-
-def _frame(source: str, **fields: Any) -> SonarImage:
-    from sonar_realism.io.common import build_frame
-
-    return build_frame(source, **fields)
-
-
-def apply_frame_info(frame: SonarImage, info: FrameInfo, geometry: tuple[np.ndarray, np.ndarray]) -> SonarImage:
-    """Our own file: the exact seq, scale, meta and float64 geometry the writer had."""
-    return frame.replace(seq=info.seq, intensity_scale=info.intensity_scale, meta=info.meta,
-                         ranges_m=geometry[0], azimuths_rad=geometry[1])
 
 
 def frame_to_sonar_image(store: Typestore, frame: SonarImage, sample: int | None = None) -> Any:

@@ -31,6 +31,7 @@ from sonar_realism.errors import FormatError
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import ros_messages as msgs
 from sonar_realism.io.common import ImageSidecar, load_sidecar
+from sonar_realism.io.folder import image_to_frame, natural_key
 from sonar_realism.io.report import ReadReport
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
@@ -83,7 +84,7 @@ def read_bag(path: str | Path, kind: str, report: ReadReport, topic: str | None 
     if chosen.msgtype not in store.types:
         raise FormatError(source, chosen.name, f"message type {chosen.msgtype} is unknown (no definition in the bag)")
     decode = store.deserialize_ros1 if kind == "ros1_bag" else store.deserialize_cdr
-    sidecar = _image_sidecar(path, geometry) if chosen.msgtype == msgs.IMAGE else None
+    sidecar = load_sidecar(path, overrides=geometry) if chosen.msgtype == msgs.IMAGE else None
     where = f"{source} {chosen.name}"
     assembler = _Assembler(where, report)
     count = 0
@@ -173,14 +174,8 @@ def choose_topic(topics: list[Topic], topic: str | None, source: str) -> Topic:
                                        f"the bag has: {listing}")
 
 
-def _image_sidecar(path: Path, geometry: dict[str, Any] | None) -> tuple[ImageSidecar | None, str]:
-    return load_sidecar(path, overrides=geometry)
-
-
 def _image_frame(message: Any, path: Path, sidecar: tuple[ImageSidecar | None, str] | None,
                  position: int) -> SonarImage:
-    from sonar_realism.io.folder import image_to_frame
-
     source = f"{path} {message.header.frame_id}"
     pixels = msgs.image_pixels(message, source)
     loaded, sidecar_source = sidecar if sidecar is not None else (None, "")
@@ -197,19 +192,13 @@ def _container(path: Path, kind: str) -> _Mcap | _Ros1 | _Sqlite:
         return _Mcap([path])
     if kind == "ros1_bag":
         return _Ros1(path)
-    mcaps = sorted(path.glob("*.mcap"), key=_natural)
+    mcaps = sorted(path.glob("*.mcap"), key=natural_key)
     if mcaps:
         return _Mcap(mcaps)
     if any(path.glob("*.db3")):
         return _Sqlite(path)
     raise FormatError(str(path), "storage", "a ROS 2 bag folder without .mcap or .db3 files "
                                             "(compressed bags: decompress with `ros2 bag convert` first)")
-
-
-def _natural(path: Path) -> list[Any]:
-    import re
-
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
 
 
 class _Truncated(Exception):
