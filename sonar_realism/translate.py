@@ -150,6 +150,8 @@ def _chunks(frames: Iterator[SonarImage], size: int, limit: int | None) -> Itera
 
 
 def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
     from sonar_realism.io import read_frames, write_frames
     from sonar_realism.plots import image_grid
 
@@ -158,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     columns = 1 + min(args.n, 7)
 
     def translated() -> Iterator[SonarImage]:
-        inputs = read_frames(args.inp, topic=args.topic)
+        inputs = tqdm(read_frames(args.inp, topic=args.topic), desc="translate", unit="frame")
         for index, chunk in enumerate(_chunks(inputs, _FRAMES_PER_PASS, args.max_frames)):
             # Chunk k draws its noise from (seed, k): reproducible end to end and independent across chunks.
             chunk_seed = int(np.random.SeedSequence([args.seed, index]).generate_state(1, np.uint64)[0] >> 1)
@@ -168,10 +170,8 @@ def run(args: argparse.Namespace) -> int:
                     sheet.append(frame.normalized())
                     sheet.extend(output.intensity[: columns - 1])
                 yield output
-            print(f"\rtranslated {index * _FRAMES_PER_PASS + len(chunk)} frames", end="", file=sys.stderr)
 
     count = write_frames(translated(), args.out)
-    print(file=sys.stderr)
     if not count:
         raise ConfigError(f"--in {args.inp}: no frames to translate")
     labels = [("input" if i % columns == 0 else f"sample {i % columns}") for i in range(len(sheet))]
