@@ -205,6 +205,9 @@ def test_cli_runs_the_demo_in_process_mode_end_to_end(tmp_path):
     assert [f.seq for f in translated] == [0, 1] and translated[0].intensity.shape[0] == 2
     assert (run / "translated_contact_sheet.png").stat().st_size > 0
     assert len(list(read_frames(run / "simulated"))) == 2
+    page = (run / "demo.html").read_text()
+    assert page.count("data:image/png;base64,") == 1 and "sample 2" not in page  # labels are inside the PNG
+    assert "2 simulated, 2 translated" in page
     resolved = json.loads((run / "resolved.json").read_text())
     assert resolved["launch"]["mode"] == "process" and resolved["nodes"]["sim"]["params"]["count"] == 2
     assert all(item["exit_code"] == 0 for item in json.loads((run / "run_summary.json").read_text()).values())

@@ -56,16 +56,12 @@ def test_heatmap_has_a_colour_bar_and_fans_are_fans(tmp_path):
                                         extent=(-60, 60, 0.5, 20), xlabel="bearing (deg)", ylabel="range (m)",
                                         colorbar_label="gap")))
     assert heat is not None and heat.shape[1] >= 320
-    ranges, bearings = np.linspace(1, 10, 32), np.radians(np.linspace(-60, 60, 40))
-    fan = cv2.imread(str(plots.fan_grid([(np.ones((32, 40)), ranges, bearings)], tmp_path / "f.png", ncols=1)),
-                     cv2.IMREAD_GRAYSCALE)
-    # A fan's top corners (beyond the arc) are background, its centre line is drawn; a rectangle would fill both.
-    inked = fan < 200
-    rows = np.flatnonzero(inked.sum(axis=1) > 20)
-    top, bottom = rows.min() + 5, rows.max() - 5
-    width_top = inked[top].sum()
-    width_bottom = inked[bottom].sum()
-    assert width_top > 1.5 * width_bottom
+    ranges, bearings = np.linspace(1, 10, 32), np.radians(np.linspace(-30, 30, 40))
+    fan = cv2.imread(str(plots.fan_grid([(np.ones((32, 40)), ranges, bearings)], tmp_path / "f.png", ncols=1)))
+    # Full-scale cells (inferno's pale yellow) widen from the apex up to the arc: drawn as a fan, not a rectangle.
+    rows = np.flatnonzero(count_rows := (np.abs(fan.astype(int) - (164, 255, 252)).sum(axis=2) < 60).sum(axis=1))
+    near, far = count_rows[rows.min() + int(0.8 * rows.size)], count_rows[rows.min() + int(0.2 * rows.size)]
+    assert near < 0.5 * far
 
 
 def test_html_page_is_self_contained_and_matches_the_markdown(tmp_path):
