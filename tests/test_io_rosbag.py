@@ -13,7 +13,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.rosbag2.storage_mcap import McapReader
 
-from sonar_realism import FormatError, SonarImage
+from sonar_realism import FormatError, FrameError, SonarImage
 from sonar_realism.frames import uniform_azimuths, uniform_ranges
 from sonar_realism.io import ReadReport, read_frames, sniff, write_frames
 from sonar_realism.io import ros_messages as msgs
@@ -318,3 +318,12 @@ def test_recorder_writes_an_mcap_bag(tmp_path):
     back = list(read_frames(tmp_path / "rec.mcap"))
     for a, b in zip(frames_to_write(), back, strict=True):
         assert_same(a, b)
+
+
+def test_writing_refuses_what_a_bag_cannot_hold(tmp_path):
+    good = frames_to_write()[0]
+    with pytest.raises(FrameError, match="meta: frame 1 meta is not JSON-able"):
+        write_frames([good, good.replace(meta={"when": object()})], tmp_path / "bad.mcap")
+    with pytest.raises(FrameError, match="not a SonarImage"):
+        write_frames([good.intensity], tmp_path / "bad.mcap")
+    assert not (tmp_path / "bad.mcap").exists() and not list(tmp_path.iterdir())  # no half-written bag left

@@ -27,7 +27,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from sonar_realism.errors import FormatError
+from sonar_realism.errors import FormatError, FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import ros_messages as msgs
 from sonar_realism.io.common import ImageSidecar, load_sidecar
@@ -520,7 +520,7 @@ def write_mcap(frames: Iterable[SonarImage], path: str | Path, topic: str = SONA
             geometry: tuple[np.ndarray, np.ndarray] | None = None
             for count, frame in enumerate(frames, start=1):
                 if not isinstance(frame, SonarImage):
-                    raise FormatError(str(path), "frames", f"frame {count - 1} is a {type(frame).__name__}")
+                    raise FrameError(f"write_frames: frame {count - 1} is a {type(frame).__name__}, not a SonarImage")
                 changed = geometry is None or not (np.array_equal(geometry[0], frame.ranges_m)
                                                    and np.array_equal(geometry[1], frame.azimuths_rad))
                 geometry = (frame.ranges_m, frame.azimuths_rad)
@@ -533,8 +533,12 @@ def write_mcap(frames: Iterable[SonarImage], path: str | Path, topic: str = SONA
                                           ranges_m=frame.ranges_m.tolist() if changed and sample == 0 else None,
                                           azimuths_rad=frame.azimuths_rad.tolist() if changed and sample == 0
                                           else None)
+                    try:
+                        text = info.to_json()
+                    except (TypeError, ValueError) as exc:
+                        raise FrameError(f"meta: frame {count - 1} meta is not JSON-able ({exc})") from exc
                     writer.write(info_connection, log_time,
-                                 store.serialize_cdr(msgs.string_message(store, info.to_json()), msgs.STRING))
+                                 store.serialize_cdr(msgs.string_message(store, text), msgs.STRING))
                     message = msgs.frame_to_sonar_image(store, frame, sample if frame.intensity.ndim == 3 else None)
                     writer.write(image_connection, log_time, store.serialize_cdr(message, msgs.PROJECTED_SONAR_IMAGE))
                 fan = msgs.fan_image_message(store, frame, fan_width_px)
