@@ -1,5 +1,5 @@
-"""recorder: writes every received frame losslessly (frames folder, or NPZ if `path` ends in .npz) and a
-contact-sheet PNG of fan views, then stops when the stream ends."""
+"""recorder: writes every received frame losslessly (frames folder; NPZ or ROS 2 MCAP bag if `path` ends in
+.npz or .mcap) and a contact-sheet PNG of fan views, then stops when the stream ends."""
 
 from __future__ import annotations
 

@@ -33,6 +33,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
+from tqdm import tqdm
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.datasets import (
@@ -227,8 +228,9 @@ class Trainer:
         self.model.train()
         totals = np.zeros(3)
         n_batches = (len(data) + self.cfg.batch_size - 1) // self.cfg.batch_size
-        started = time.monotonic()
-        for i, batch in enumerate(batches(data.images, self.cfg.batch_size, self.rng, self.cfg.flip_beams)):
+        bar = tqdm(batches(data.images, self.cfg.batch_size, self.rng, self.cfg.flip_beams), desc=label,
+                   total=n_batches, unit="batch", leave=False, disable=not (self.progress and self.rank == 0))
+        for i, batch in enumerate(bar):
             batch = self._to_device(batch[self.rank::self.world] if self.world > 1 else batch)
             with self._autocast():
                 x_hat, mu, logvar = net(batch, self._domain())
@@ -237,8 +239,7 @@ class Trainer:
             total.backward()
             self.optimizer.step()
             totals += [total.item(), perceptual.item(), kl.item()]
-            if self.progress and self.rank == 0:
-                _progress(label, i + 1, n_batches, totals[0] / (i + 1), time.monotonic() - started)
+            bar.set_postfix(loss=f"{totals[0] / (i + 1):.4g}", refresh=False)
         mean = totals / max(n_batches, 1)
         return {"train_loss": mean[0], "train_perceptual": mean[1], "train_kl": mean[2]}
 
@@ -277,9 +278,9 @@ class Trainer:
             budget[0] -= 1
             if self.rank == 0:
                 if self.progress:
-                    print(f"\r{label}: train {row['train_loss']:.4g} val {row['val_loss']:.4g} "
-                          f"(kl {row['val_kl']:.3g}){' *' if record.best_epoch == record.epochs_done else ''}",
-                          file=sys.stderr)
+                    tqdm.write(f"{label}: train {row['train_loss']:.4g} val {row['val_loss']:.4g} "
+                               f"(kl {row['val_kl']:.3g}){' *' if record.best_epoch == record.epochs_done else ''}",
+                               file=sys.stderr)
                 self.save_state()
         return True
 
@@ -435,14 +436,6 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, np.integer | np.floating):
         return value.item()
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
-def _progress(label: str, done: int, total: int, loss: float, elapsed: float) -> None:
-    width = 24
-    filled = int(width * done / max(total, 1))
-    eta = elapsed / done * (total - done)
-    print(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} loss {loss:.4g} "
-          f"eta {eta:.0f}s", end="", file=sys.stderr, flush=True)
 
 
 # --- CLI -----------------------------------------------------------------------------------------------------------

@@ -130,7 +130,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cDFCVAE (or CycleGAN baseline) checkpoint, .safetensors with its .json; "
                              "default: the shipped cDFCVAE")
     parser.add_argument("--in", dest="inp", required=True, help="simulated frames (any format read_frames reads)")
-    parser.add_argument("--out", required=True, help="output frames folder (+ contact_sheet.png)")
+    parser.add_argument("--out", required=True, help="output: a frames folder (+ contact_sheet.png), or NAME.npz / "
+                                                     "NAME.mcap (ROS 2 bag; + NAME.contact_sheet.png beside it)")
+    parser.add_argument("--topic", help="--in a ROS bag: its sonar topic (default: the one found by message type)")
     parser.add_argument("--n", type=int, default=8, help="samples per frame (default 8)")
     parser.add_argument("--temperature", type=float, default=1.0, help="latent noise scale s (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
@@ -152,6 +154,8 @@ def _chunks(frames: Iterator[SonarImage], size: int, limit: int | None) -> Itera
 
 
 def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
     from sonar_realism.io import read_frames, write_frames
     from sonar_realism.plots import image_grid
 
@@ -160,7 +164,8 @@ def run(args: argparse.Namespace) -> int:
     columns = 1 + min(args.n, 7)
 
     def translated() -> Iterator[SonarImage]:
-        for index, chunk in enumerate(_chunks(read_frames(args.inp), _FRAMES_PER_PASS, args.max_frames)):
+        inputs = tqdm(read_frames(args.inp, topic=args.topic), desc="translate", unit="frame")
+        for index, chunk in enumerate(_chunks(inputs, _FRAMES_PER_PASS, args.max_frames)):
             # Chunk k draws its noise from (seed, k): reproducible end to end and independent across chunks.
             chunk_seed = int(np.random.SeedSequence([args.seed, index]).generate_state(1, np.uint64)[0] >> 1)
             outputs = translator.translate(chunk, args.n, args.temperature, seed=chunk_seed)
@@ -169,13 +174,13 @@ def run(args: argparse.Namespace) -> int:
                     sheet.append(frame.normalized())
                     sheet.extend(output.intensity[: columns - 1])
                 yield output
-            print(f"\rtranslated {index * _FRAMES_PER_PASS + len(chunk)} frames", end="", file=sys.stderr)
 
     count = write_frames(translated(), args.out)
-    print(file=sys.stderr)
     if not count:
         raise ConfigError(f"--in {args.inp}: no frames to translate")
     labels = [("input" if i % columns == 0 else f"sample {i % columns}") for i in range(len(sheet))]
-    image_grid(sheet, Path(args.out) / "contact_sheet.png", ncols=columns, labels=labels)
+    out = Path(args.out)
+    sheet_path = out.with_name(out.stem + ".contact_sheet.png") if out.is_file() else out / "contact_sheet.png"
+    image_grid(sheet, sheet_path, ncols=columns, labels=labels)
     print(f"{count} frames x {args.n} samples -> {args.out}", file=sys.stderr)
     return 0

@@ -166,6 +166,9 @@ def test_cli_writes_diagnosis_json_and_report(tmp_path):
     assert isinstance(result["gap_before"], float) and result["gap_before"] > 0
     assert (tmp_path / "out" / "report.md").read_text().startswith("# Sim-to-real gap diagnosis")
     assert (tmp_path / "out" / "diag_cells_after.png").stat().st_size > 0
+    page = (tmp_path / "out" / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 8 and "gamma_quantization" in page
+    assert 'src="diag_' not in page  # self-contained: nothing linked beside it
 
 
 def test_bad_input_says_what_is_needed(tmp_path, capsys):

@@ -59,6 +59,8 @@ def test_evaluate_writes_table_metrics_and_figures(tmp_path):
     assert "Table I" in report and "paper 0.114–0.212" in report and "| cyclegan |" in report
     for name in results["figures"].values():
         assert (out / name).stat().st_size > 1000
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == len(results["figures"]) and "paper 0.114–0.212" in page
 
 
 def test_evaluate_names_a_missing_folder(tmp_path, capsys):

@@ -141,7 +141,7 @@ def test_overrides_and_defaults_end_up_in_the_resolved_config(tmp_path):
     # consumers start before sources; lossless edges get one PUSH endpoint each
     assert graph.start_order.index("recorder") < graph.start_order.index("translator") < \
         graph.start_order.index("sim")
-    assert len(graph.nodes["sim"].wiring.outputs["frames"].push_endpoints) == 2
+    assert len(graph.nodes["sim"].wiring.outputs["frames"].push_endpoints) == 3  # translator, recorder, page
 
 
 def test_shipped_launch_files_are_valid():
@@ -205,10 +205,28 @@ def test_cli_runs_the_demo_in_process_mode_end_to_end(tmp_path):
     assert [f.seq for f in translated] == [0, 1] and translated[0].intensity.shape[0] == 2
     assert (run / "translated_contact_sheet.png").stat().st_size > 0
     assert len(list(read_frames(run / "simulated"))) == 2
+    page = (run / "demo.html").read_text()
+    assert page.count("data:image/png;base64,") == 1 and "sample 2" not in page  # labels are inside the PNG
+    assert "2 simulated, 2 translated" in page
     resolved = json.loads((run / "resolved.json").read_text())
     assert resolved["launch"]["mode"] == "process" and resolved["nodes"]["sim"]["params"]["count"] == 2
     assert all(item["exit_code"] == 0 for item in json.loads((run / "run_summary.json").read_text()).values())
     assert not _processes_mentioning(str(run))
+
+
+def test_demo_view_runs_the_viewer_node_on_the_live_streams(tmp_path):
+    from test_nodes import tiny_checkpoint
+
+    checkpoint = tiny_checkpoint(tmp_path)
+    run = tmp_path / "run"
+    result = subprocess.run(
+        [sys.executable, "-m", "sonar_realism.cli", "launch", str(REPO / "launch" / "demo_view.toml"), "--out",
+         str(run), "--set", "sim.count=3", "--set", "sim.rate_hz=5.0", "--set", "viewer.port=0",
+         "--set", f'translator.checkpoint="{checkpoint}"', "--set", "translator.n=2",
+         "--set", 'translator.device="cpu"'], capture_output=True, text=True, timeout=PROCESS_TIMEOUT_S, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary = json.loads((run / "run_summary.json").read_text())
+    assert summary["viewer"]["exit_code"] == 0 and summary["viewer"]["status"]["frames_in"] >= 2
 
 
 def test_sigint_to_the_launcher_stops_an_endless_pipeline_cleanly(tmp_path):

@@ -101,6 +101,18 @@ def test_translate_command_writes_frames_and_a_contact_sheet(checkpoint, tmp_pat
     assert all(np.array_equal(x.intensity, y.intensity) for x, y in zip(frames, again, strict=True))
 
 
+def test_translate_command_reads_a_bag_topic_and_writes_an_mcap_bag(checkpoint, tmp_path):
+    write_frames([_frame(i, seed=i) for i in range(2)], tmp_path / "sim.mcap")
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--checkpoint", str(checkpoint), "--in", str(tmp_path / "sim.mcap"), "--topic",
+                              "/sonar/image", "--out", str(tmp_path / "real.mcap"), "--n", "3", "--device", "cpu"])
+    assert run(args) == 0
+    frames = list(read_frames(tmp_path / "real.mcap"))
+    assert [f.seq for f in frames] == [0, 1] and all(f.intensity.shape == (3, 50, 40) for f in frames)
+    assert (tmp_path / "real.contact_sheet.png").stat().st_size > 1000
+
+
 @pytest.mark.skipif(not DEFAULT_CHECKPOINT.exists(), reason="shipped checkpoint not present")
 def test_shipped_checkpoint_loads_and_translates():
     model, info = load_checkpoint(DEFAULT_CHECKPOINT)

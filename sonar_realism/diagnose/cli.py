@@ -1,5 +1,6 @@
 """`sonar-realism diagnose --sim DIR --real DIR --out DIR`: where the sim-to-real gap lies, which effect causes it,
-and how far it shrinks. Writes DIR/diagnosis.json, DIR/report.md and the report's figures."""
+and how far it shrinks. Writes DIR/diagnosis.json, DIR/report.html (self-contained), DIR/report.md and the
+figures."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.diagnose.diagnosis import DiagnoseConfig, diagnose
@@ -24,7 +26,7 @@ from sonar_realism.io import read_frames
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim", required=True, nargs="+", help="simulated frames (folder or recording; several ok)")
     parser.add_argument("--real", required=True, nargs="+", help="real frames (folder or recording; several ok)")
-    parser.add_argument("--out", required=True, help="output folder for diagnosis.json, report.md and figures")
+    parser.add_argument("--out", required=True, help="output folder: diagnosis.json, report.html, report.md, figures")
     parser.add_argument("--resample", action="store_true",
                         help="put frames of other grids on the real set's most common grid instead of refusing")
     parser.add_argument("--grid", help="resample both sets onto RANGESxBEAMS (e.g. 128x128, a model's grid)")
@@ -53,7 +55,12 @@ def run(args: argparse.Namespace) -> int:
         most_common = Counter(f.intensity.shape[-2:] for f in real).most_common(1)[0][0]
         grid = parse_grid(args.grid) if args.grid else most_common
         sim, real = on_grid(sim, grid), on_grid(real, grid)
-    diagnosis = diagnose(sim, real, config, progress=lambda message: print(message, file=sys.stderr))
+    with tqdm(desc="diagnose", unit="fit step") as bar:
+        def progress(message: str) -> None:
+            bar.update()
+            bar.write(message, file=sys.stderr)
+
+        diagnosis = diagnose(sim, real, config, progress=progress)
     report = write_report(diagnosis, args.out)
     s = diagnosis.summary
     print(f"gap before {s['gap_before']:.4g} -> after {', '.join(s['selected']) or 'nothing'}: "
@@ -65,7 +72,7 @@ def load_set(paths: Sequence[str], max_frames: int) -> list[SonarImage]:
     """All frames of `paths`, evenly thinned to at most `max_frames`."""
     frames: list[SonarImage] = []
     for path in paths:
-        frames.extend(read_frames(path))
+        frames.extend(tqdm(read_frames(path), desc=f"read {path}", unit="frame"))
     if not frames:
         raise ConfigError(f"no frames found in {', '.join(paths)}")
     if len(frames) > max_frames:

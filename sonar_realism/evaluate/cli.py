@@ -13,9 +13,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from tqdm import tqdm
+
 from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.errors import ConfigError
-from sonar_realism.evaluate.progress import progress
 from sonar_realism.evaluate.suite import SimInput, SuiteConfig, Translator
 from sonar_realism.io import read_frames
 from sonar_realism.models.realism_cnn import RealismCNNConfig
@@ -31,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim-effects", default="none", help="effects of the simulated inputs (default none)")
     parser.add_argument("--model", action="append", default=[], metavar="[NAME=]CKPT",
                         help="translator checkpoint (repeatable); 'default' = the shipped cDFCVAE")
-    parser.add_argument("--out", required=True, help="output folder (results.json, report.md, PNGs)")
+    parser.add_argument("--out", required=True, help="output folder (results.json, report.html, report.md, PNGs)")
     parser.add_argument("--n", type=int, default=4, help="samples per input from each translator (default 4)")
     parser.add_argument("--grid", default="128x128", help="model grid ROWSxCOLS (default 128x128)")
     parser.add_argument("--max-real", type=int, default=None, help="use at most this many real frames")
@@ -60,7 +61,7 @@ def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
     if args.sim:
         items = []
         for folder in args.sim:
-            for frame in progress(read_frames(folder), f"read {folder}"):
+            for frame in tqdm(read_frames(folder), desc=f"read {folder}", unit="frame"):
                 items.append(SimInput(frame, str(frame.meta.get("scene") or Path(folder).name)))
         return items
     from sonar_realism.sim import simulate
@@ -68,8 +69,8 @@ def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
     items = []
     for scene in [s.strip() for s in args.scenes.split(",") if s.strip()]:
         effects = args.sim_effects if args.sim_effects in ("none", "all") else args.sim_effects.split(",")
-        for frame, mask in progress(simulate(scene=scene, effects=effects, n=args.n_sim, seed=args.seed),
-                                    f"simulate {scene}", total=args.n_sim):
+        for frame, mask in tqdm(simulate(scene=scene, effects=effects, n=args.n_sim, seed=args.seed),
+                                desc=f"simulate {scene}", total=args.n_sim, unit="frame"):
             items.append(SimInput(frame, scene, mask))
     return items
 
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             name = f"{name}-{Path(path).stem}"
         translators[name], paths[name] = translator, path
     real = []
-    for frame in progress(read_frames(args.real), "read real"):
+    for frame in tqdm(read_frames(args.real), desc="read real", unit="frame"):
         real.append(frame)
         if args.max_real and len(real) >= args.max_real:
             break

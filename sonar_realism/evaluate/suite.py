@@ -17,13 +17,13 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+from tqdm import tqdm
 
 from sonar_realism.config import to_dict
 from sonar_realism.datasets import normalise, to_model_grid
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.diversity import sample_diversity
 from sonar_realism.evaluate.kid import kernel_inception_distance
-from sonar_realism.evaluate.progress import progress, report_epoch
 from sonar_realism.evaluate.realism import PAPER_TABLE_I, summarize_scores
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.evaluate.structure import edge_ssim, mask_iou, mask_to_grid
@@ -91,12 +91,28 @@ def _translate(translator: Translator, frames: list[SonarImage], config: SuiteCo
     sample at its own resolution (frame-max scaled), for the texture test."""
     out, native = [], []
     batches = [frames[i:i + config.translate_batch] for i in range(0, len(frames), config.translate_batch)]
-    for index, batch in enumerate(progress(batches, f"translate ({name})")):
+    for index, batch in enumerate(tqdm(batches, desc=f"translate ({name})", unit="batch")):
         results = translator.translate(batch, n=config.n_samples, seed=config.seed + index)
         for result in results:
             out.append(to_model_grid(result, config.grid, "frame_max").reshape(-1, *config.grid))
             native.append(normalise(result.sample(0), "frame_max"))
     return np.stack(out), native
+
+
+def _epoch_bar(label: str) -> Callable[[int, int, float], None]:
+    """A `progress(epoch, epochs, loss)` callback drawing a tqdm bar over the epochs."""
+    bar: tqdm | None = None
+
+    def callback(epoch: int, epochs: int, loss: float) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(total=epochs, desc=label, unit="epoch")
+        bar.update(epoch - bar.n)
+        bar.set_postfix(loss=f"{loss:.4f}")
+        if epoch == epochs:
+            bar.close()
+
+    return callback
 
 
 def family_gaps(images: np.ndarray, reference: np.ndarray) -> dict[str, float] | None:
@@ -173,7 +189,7 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     log(f"realism CNN: {len(real_cnn_idx)} real vs {len(train_sim)} simulated frames")
     cnn = train_classifier(real[real_cnn_idx], np.stack([sim_grid(i) for i in train_sim]),
                            dataclasses.replace(config.cnn, grid=config.grid, seed=config.seed),
-                           progress=report_epoch("realism CNN"))
+                           progress=_epoch_bar("realism CNN"))
     inputs = np.stack([sim_grid(item) for item in scored])
     masks = [mask_to_grid(item.mask, config.grid) if item.mask is not None else None for item in scored]
     outputs = {RAW_SIM: inputs[:, None]}
@@ -193,7 +209,7 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
 
     reference_features = embeddings(cnn, reference)
     methods = {}
-    for name in progress(list(outputs), "metrics"):
+    for name in tqdm(list(outputs), desc="metrics", unit="method"):
         methods[name] = _method_metrics(outputs[name], natives[name], inputs, masks, reference, reference_native,
                                         reference_features, cnn, config, name)
 
@@ -212,7 +228,10 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
                     for name, out in outputs.items()},
         "paper_table_i": PAPER_TABLE_I,
     }
+    first = frames[0]
     artifacts = {"outputs": outputs, "inputs": inputs, "labels": labels, "reference": reference, "spectra": spectra,
+                 "fan_extent": (float(first.ranges_m[0]), float(first.ranges_m[-1]), float(first.azimuths_rad[0]),
+                                float(first.azimuths_rad[-1])),
                  "histograms": {**{n: intensity_histogram(o[:, 0]) for n, o in outputs.items()},
                                 "real": intensity_histogram(reference)}}
     return SuiteResult(summary=summary, artifacts=artifacts)

@@ -2,7 +2,8 @@
 
 `read_frames(path)` reads a single file or a folder: frames folders written by `write_frames`, Oculus
 `.oculus` logs and raw message streams (`sonar_realism.io.oculus`), NPZ files, PNG/TIFF polar images
-and Cartesian fan images with optional JSON sidecars. The reader is chosen by magic bytes, never by the
+and Cartesian fan images with optional JSON sidecars, ROS 1 bags, ROS 2 bag folders and MCAP files
+(`sonar_realism.io.rosbag`). The reader is chosen by magic bytes, never by the
 extension alone. Everything streams: a frame is decoded when the iterator reaches it.
 
 Formats are described in docs/formats.md.
@@ -12,10 +13,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from sonar_realism.errors import FormatError
 from sonar_realism.frames import SonarImage
-from sonar_realism.io import folder, npz, oculus
+from sonar_realism.io import folder, npz, oculus, rosbag
 from sonar_realism.io.report import ReadReport
 
 __all__ = ["ReadReport", "read_frames", "write_frames", "sniff"]
@@ -24,10 +26,13 @@ _HEAD_BYTES = 64
 
 
 def sniff(path: str | Path) -> str | None:
-    """What `path` holds: "frames-folder", "folder", "png", "tiff", "npz", "oculus_log", "oculus_raw", or None."""
+    """What `path` holds: "frames-folder", "folder", "ros2_bag", "ros1_bag", "mcap", "png", "tiff", "npz",
+    "oculus_log", "oculus_raw", or None."""
     path = Path(path)
     if path.is_dir():
-        return "frames-folder" if folder.is_frames_folder(path) else "folder"
+        if folder.is_frames_folder(path):
+            return "frames-folder"
+        return rosbag.sniff(path, b"") or "folder"
     if path.name == folder.INDEX_NAME:
         return "frames-folder"
     with open(path, "rb") as stream:
@@ -38,14 +43,17 @@ def sniff(path: str | Path) -> str | None:
         return "tiff"
     if head.startswith(npz.ZIP_MAGIC):
         return "npz"
-    return oculus.sniff(head)
+    return rosbag.sniff(path, head) or oculus.sniff(head)
 
 
-def read_frames(path: str | Path, report: ReadReport | None = None) -> Iterator[SonarImage]:
+def read_frames(path: str | Path, report: ReadReport | None = None, topic: str | None = None,
+                geometry: dict[str, Any] | None = None) -> Iterator[SonarImage]:
     """Every frame of the recording at `path` (a file or a folder), in recording order.
 
     Files a reader does not own are counted in `report.skipped`; corrupt records it can step over are in
     `report.problems`; input it cannot make sense of raises FormatError naming the file and field.
+    For ROS bags, `topic` chooses the sonar topic (default: the one sonar topic found by type) and
+    `geometry` (sidecar keys, docs/formats.md) gives sensor_msgs/Image frames their geometry.
     """
     path = Path(path)
     report = report if report is not None else ReadReport()
@@ -57,18 +65,23 @@ def read_frames(path: str | Path, report: ReadReport | None = None) -> Iterator[
         yield from folder.read_frames_folder(path if path.is_dir() else path.parent, report)
     elif kind == "folder":
         yield from _read_plain_folder(path, report)
+    elif kind in rosbag.KINDS:
+        yield from rosbag.read_bag(path, kind, report, topic, geometry)
     else:
         yield from _read_file(path, kind, report)
 
 
 def write_frames(frames: Iterable[SonarImage], path: str | Path) -> int:
-    """Write `frames` to `path`: an NPZ file when the name ends in .npz, else a frames folder. Returns the count.
+    """Write `frames` to `path`: an NPZ file when the name ends in .npz, a ROS 2 MCAP bag when it ends in .mcap,
+    else a frames folder. Returns the count.
 
-    Both are streamed (one frame in memory at a time) and read back losslessly by `read_frames`.
+    All are streamed (one frame in memory at a time) and read back losslessly by `read_frames`.
     """
     path = Path(path)
     if path.suffix.lower() == ".npz":
         return npz.write_npz(frames, path)
+    if path.suffix.lower() == ".mcap":
+        return rosbag.write_mcap(frames, path)
     return folder.write_frames_folder(frames, path)
 
 
@@ -97,6 +110,9 @@ def _read_file(path: Path, kind: str | None, report: ReadReport, position: int =
         yield from npz.read_npz(path, report)
     elif kind in ("oculus_log", "oculus_raw"):
         yield from oculus.read_oculus(path, report)
+    elif kind in rosbag.KINDS:
+        yield from rosbag.read_bag(path, kind, report)
     else:
-        raise FormatError(str(path), "magic", "unrecognised content (not a frames folder, PNG, TIFF, NPZ or Oculus)")
+        raise FormatError(str(path), "magic",
+                          "unrecognised content (not a frames folder, PNG, TIFF, NPZ, Oculus, ROS bag or MCAP)")
 

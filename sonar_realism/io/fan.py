@@ -20,7 +20,7 @@ import numpy as np
 from sonar_realism.errors import FormatError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.geometry import FanLayout, fan_to_polar
-from sonar_realism.io.folder import ImageSidecar, build_frame
+from sonar_realism.io.common import ImageSidecar, build_frame
 
 # 1 px = 1 cm: puts the ARIS water-tank window (≈130–570 px from the apex) at ≈1.3–5.7 m, the ARIS 3000's
 # usual short-range window. Only an assumption; a sidecar with px_per_m replaces it.

@@ -17,7 +17,9 @@ from sonar_realism.io.report import ReadReport
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="a recording: frames folder, image folder, .oculus log, raw stream, NPZ, PNG/TIFF")
+    parser.add_argument("path", help="a recording: frames folder, image folder, .oculus log, raw stream, NPZ, "
+                                     "PNG/TIFF, ROS 1 bag, ROS 2 bag folder, MCAP")
+    parser.add_argument("--topic", help="ROS bags: the sonar topic (default: the one found by message type)")
     parser.add_argument("--json", action="store_true", help="print one JSON document instead of a table")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N",
                         help="stop after N frames (default: read the whole recording)")
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     report = ReadReport(source=args.path)
     kind = sniff(args.path) if Path(args.path).exists() else None
     frames: list[dict[str, Any]] = []
-    for index, frame in enumerate(read_frames(args.path, report)):
+    for index, frame in enumerate(read_frames(args.path, report, topic=args.topic)):
         if args.max_frames is not None and index >= args.max_frames:
             break
         frames.append(describe(frame, index))

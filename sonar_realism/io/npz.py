@@ -28,7 +28,7 @@ import numpy as np
 
 from sonar_realism.errors import FormatError, FrameError
 from sonar_realism.frames import SonarImage
-from sonar_realism.io.folder import build_frame, json_default
+from sonar_realism.io.common import build_frame, json_default
 from sonar_realism.io.report import ReadReport
 
 ZIP_MAGIC = b"PK\x03\x04"

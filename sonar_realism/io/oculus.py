@@ -1,7 +1,7 @@
 """Blueprint Subsea Oculus recordings: simple ping result messages (0x23, v1 and v2), raw TCP message
 streams and ViewPoint `.oculus` V1 logs.
 
-Byte layouts follow docs/background/oculus_format.md (sections 3 and 4): everything little-endian, the
+Byte layouts (docs/oculus.md): everything little-endian, the
 network structs packed, the log structs naturally aligned (48-byte file header, 40-byte item header).
 Every size field is checked against the bytes actually present before anything is sliced or allocated,
 so a lying size costs at most one bounded read. Readers stream one message at a time (positional reads

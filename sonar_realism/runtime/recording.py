@@ -1,9 +1,9 @@
 """Recording a stream: every frame written losslessly as it arrives, plus a contact sheet a person can look at.
 
-Frames go to `sonar_realism.io.write_frames` (a frames folder, or NPZ when the path ends in .npz) through
-a writer thread, so disk time never stalls the node's socket loop and only `max_backlog` frames are held
-in memory. The contact sheet keeps an evenly spread subset of the stream without knowing its length:
-every k-th frame, with k doubling whenever the sheet is full.
+Frames go to `sonar_realism.io.write_frames` (a frames folder; NPZ or a ROS 2 MCAP bag when the path ends
+in .npz or .mcap) through a writer thread, so disk time never stalls the node's socket loop and only
+`max_backlog` frames are held in memory. The contact sheet keeps an evenly spread subset of the stream
+without knowing its length: every k-th frame, with k doubling whenever the sheet is full.
 """
 
 from __future__ import annotations

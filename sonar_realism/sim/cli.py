@@ -15,13 +15,13 @@ import dataclasses
 import json
 import shlex
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from sonar_realism.config import to_dict
 from sonar_realism.errors import ConfigError
@@ -92,17 +92,17 @@ def run(args: argparse.Namespace) -> int:
 
     world = build_scene(args.scene, args.seed, sensor.max_range_m)
     poses = world.trajectory(args.n)
-    progress = _Progress(args.n, enabled=not args.quiet)
+    simulated = tqdm(simulate(world, effects, args.n, args.seed, sensor), desc="simulate", total=args.n,
+                     unit="frame", disable=args.quiet)
 
     def frames() -> Iterator[SonarImage]:
-        for index, (frame, mask) in enumerate(simulate(world, effects, args.n, args.seed, sensor)):
+        for index, (frame, mask) in enumerate(simulated):
             if not cv2.imwrite(str(out / "masks" / f"{index:06d}.png"), mask):
                 raise ConfigError(f"could not write {out / 'masks' / f'{index:06d}.png'}")
-            progress.step()
             yield _stored(frame, args.dtype)
 
     count = write_frames(frames(), out)
-    progress.close()
+    simulated.close()
     manifest = {
         "scene": args.scene, "seed": args.seed, "n": count, "trajectory": world.trajectory_kind,
         "sensor": to_dict(sensor), "effects": [{"name": e.name, "params": e.params()} for e in effects],
@@ -134,27 +134,3 @@ def _argv_of(args: argparse.Namespace) -> list[str]:
     for item in args.param:
         argv += ["--param", item]
     return argv
-
-
-class _Progress:
-    """A one-line progress bar on stderr (no dependency)."""
-
-    WIDTH = 30
-
-    def __init__(self, total: int, enabled: bool) -> None:
-        self.total, self.done, self.enabled = total, 0, enabled
-        self.start = time.perf_counter()
-
-    def step(self) -> None:
-        self.done += 1
-        if not self.enabled:
-            return
-        filled = int(self.WIDTH * self.done / max(self.total, 1))
-        rate = self.done / max(time.perf_counter() - self.start, 1e-9)
-        sys.stderr.write(f"\rsimulate [{'#' * filled}{'.' * (self.WIDTH - filled)}] {self.done}/{self.total} "
-                         f"{rate:5.1f} frames/s")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
