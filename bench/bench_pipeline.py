@@ -49,7 +49,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 import zmq
 
@@ -211,13 +210,11 @@ def receive(node: TranslatorProcess, timeout_s: float = RECV_TIMEOUT_S) -> Recei
         raise RuntimeError(f"{node.transport} n={node.n}: no output within {timeout_s} s "
                            f"(exit code {node.process.poll()}); node log:\n{node.log_tail()}")
     parts = node.sink.recv_multipart(copy=False)
-    topic, kind, body = decode_message(parts)
+    message = decode_message(parts)
     perf_s, wall_ns = time.perf_counter(), time.time_ns()
-    if kind != FRAME_TYPE:
-        raise RuntimeError(f"{node.transport} n={node.n}: expected a frame on {topic}, got {body}")
-    # decode_message does not surface sent_ns; reading it again here is outside the timed span.
-    sent_ns = int(msgpack.unpackb(parts[1].bytes).get("sent_ns", 0))
-    return Received(body, perf_s, wall_ns, sent_ns)  # type: ignore[arg-type]
+    if message.kind != FRAME_TYPE:
+        raise RuntimeError(f"{node.transport} n={node.n}: expected a frame on {message.topic}, got {message.body}")
+    return Received(message.body, perf_s, wall_ns, message.sent_ns or 0)  # type: ignore[arg-type]
 
 
 def stop_translator(node: TranslatorProcess) -> None:
@@ -226,8 +223,8 @@ def stop_translator(node: TranslatorProcess) -> None:
         node.source.send_multipart(end_of_stream_message(TOPIC_IN, "bench", "finished"), flags=zmq.NOBLOCK)
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline and node.sink.poll(100):
-            _, kind, body = decode_message(node.sink.recv_multipart(copy=False))
-            if kind != FRAME_TYPE and body.get("end_of_stream"):  # type: ignore[union-attr]
+            message = decode_message(node.sink.recv_multipart(copy=False))
+            if message.kind != FRAME_TYPE and message.body.get("end_of_stream"):  # type: ignore[union-attr]
                 break
         node.process.wait(timeout=10.0)
     except (zmq.ZMQError, subprocess.TimeoutExpired):

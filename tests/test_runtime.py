@@ -230,7 +230,8 @@ def test_status_heartbeat_reports_counters_and_the_final_state(context):
     run_all(src, sink)
     reports = []
     while sub.poll(200):
-        reports.append(decode_message(sub.recv_multipart()))
+        message = decode_message(sub.recv_multipart())
+        reports.append((message.topic, message.kind, message.body))
     sub.close(linger=0)
     states = [body["state"] for topic, kind, body in reports]
     assert all(topic == "sink/status" and kind == "status" for topic, kind, _ in reports)

@@ -235,11 +235,11 @@ class Supervisor:
             except zmq.Again:
                 return
             try:
-                _, kind, body = decode_message(parts)
+                message = decode_message(parts)
             except WireError:
                 continue
-            if kind == STATUS_TYPE:
-                self.last_status[body["node"]] = body
+            if message.kind == STATUS_TYPE:
+                self.last_status[message.body["node"]] = message.body
 
     def summary(self) -> dict[str, Any]:
         return {name: {"exit_code": self.exit_codes.get(name), "restarts": self.restarts[name],
