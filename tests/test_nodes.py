@@ -166,3 +166,14 @@ def test_recording_is_lossless_and_draws_a_contact_sheet(tmp_path, name):
     assert back[1].meta["provenance"]["input_seq"] == 1
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet is not None and sheet.shape[1] >= 4 * 64 and sheet.std() > 0  # 4 tiles (every 2nd frame)
+
+
+def test_a_single_sample_axis_is_translated_and_several_samples_are_refused(translator):
+    from sonar_realism.errors import FrameError
+
+    model, _ = translator
+    stage = TranslationStage(model, n=2, seed=1)
+    plain, with_axis = frame(3), frame(3, samples=1)
+    np.testing.assert_array_equal(stage([with_axis])[0].intensity, stage([plain])[0].intensity)
+    with pytest.raises(FrameError, match="samples"):
+        stage([frame(4, samples=2)])

@@ -140,10 +140,17 @@ def test_lossless_never_drops_and_reports_when_full():
 
 def test_stale_frames_are_dropped_when_taken():
     queue = InputQueue(InputPolicy("fifo", capacity=4, max_age_s=1.0))
-    queue.put(tiny_frame(0, stamp_ns=time.time_ns() - 5_000_000_000))
+    queue.put(tiny_frame(0), born_ns=time.time_ns() - 5_000_000_000)  # sent 5 s ago
     queue.put(tiny_frame(1))
     assert [f.seq for f in queue.take(4)] == [1]
-    assert queue.stale == 1
+    assert queue.stale == 1 and queue.last_taken_seq == 1
+
+
+def test_age_counts_from_sending_not_from_a_simulated_acquisition_stamp():
+    # A simulator stamping sim time (here: 1 s after the epoch) must not lose every frame to max_age_s.
+    queue = InputQueue(InputPolicy("latest", max_age_s=0.5))
+    queue.put(tiny_frame(0, stamp_ns=1_000_000_000), born_ns=time.time_ns())
+    assert [f.seq for f in queue.take(1)] == [0] and queue.stale == 0
 
 
 def test_seq_tracker_counts_gaps_and_out_of_order_frames():

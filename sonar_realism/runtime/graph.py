@@ -298,10 +298,10 @@ def _free_port(host: str) -> int:
 
 def _assign_outputs(specs: dict[str, NodeSpec], classes: dict[str, type[Node]],
                     inputs: dict[str, dict[str, InputSpec]], endpoints: _Endpoints, settings: LaunchSettings,
-                    ) -> tuple[dict[tuple[str, str], OutputWiring], dict[tuple[str, str], str]]:
-    """Output wirings by (node, output), and the PUSH endpoint of each lossless edge by (consumer, input)."""
+                    ) -> tuple[dict[tuple[str, str], OutputWiring], dict[tuple[str, str], tuple[str, str]]]:
+    """Output wirings by (node, output), and the (PUSH, ack) endpoints of each lossless edge by (consumer, input)."""
     outputs = {}
-    edges: dict[tuple[str, str], str] = {}
+    edges: dict[tuple[str, str], tuple[str, str]] = {}
     for name, node_class in classes.items():
         unknown = sorted(set(specs[name].bind) - set(node_class.OUTPUTS))
         if unknown:
@@ -310,29 +310,33 @@ def _assign_outputs(specs: dict[str, NodeSpec], classes: dict[str, type[Node]],
         for output in node_class.OUTPUTS:
             consumers = [(consumer, input_name, spec) for consumer, ins in inputs.items()
                          for input_name, spec in ins.items() if spec.source == f"{name}.{output}"]
-            pushes = []
+            pushes, acks = [], []
             for consumer, input_name, spec in consumers:
                 if spec.policy == "lossless":
-                    edges[(consumer, input_name)] = endpoints.make(name, output, "to", consumer, input_name,
-                                                                   reconnect=reconnect)
-                    pushes.append(edges[(consumer, input_name)])
+                    push = endpoints.make(name, output, "to", consumer, input_name, reconnect=reconnect)
+                    ack = endpoints.make(name, output, "ack", consumer, input_name, reconnect=reconnect)
+                    edges[(consumer, input_name)] = (push, ack)
+                    pushes.append(push)
+                    acks.append(ack)
             subscribers = sum(1 for _, _, spec in consumers if spec.policy != "lossless")
             outputs[(name, output)] = OutputWiring(
                 topic=f"{name}/{output}",
                 pub_endpoint=specs[name].bind.get(output) or endpoints.make(name, output, reconnect=reconnect),
-                expected_subscribers=subscribers, push_endpoints=tuple(pushes), hwm=settings.hwm)
+                expected_subscribers=subscribers, push_endpoints=tuple(pushes), ack_endpoints=tuple(acks),
+                hwm=settings.hwm)
     return outputs, edges
 
 
 def _input_wiring(name: str, input_name: str, spec: InputSpec, outputs: dict[tuple[str, str], OutputWiring],
-                  edges: dict[tuple[str, str], str]) -> InputWiring:
+                  edges: dict[tuple[str, str], tuple[str, str]]) -> InputWiring:
     policy = InputPolicy(spec.policy, spec.capacity, spec.max_age_s)  # type: ignore[arg-type]
     if spec.external:
         return InputWiring(spec.source, spec.topic, policy)
     source_node, _, output = spec.source.partition(".")
     out = outputs[(source_node, output)]
     if spec.policy == "lossless":
-        return InputWiring(edges[(name, input_name)], out.topic, policy, in_graph=True)
+        push, ack = edges[(name, input_name)]
+        return InputWiring(push, out.topic, policy, in_graph=True, ack_endpoint=ack)
     # A producer bound to every interface is reached over loopback from this host.
     connect = out.pub_endpoint.replace("//0.0.0.0:", "//127.0.0.1:").replace("//*:", "//127.0.0.1:")
     return InputWiring(connect, out.topic, policy, in_graph=True)
