@@ -248,3 +248,78 @@ params = {{ path = "{{out}}/copy" }}
     summary = json.loads((run / "copy.summary.json").read_text())
     assert summary["frames"] == len(copy)
     assert not _processes_mentioning(str(run))
+
+
+def test_nothing_an_external_publisher_sends_takes_the_translator_down(tmp_path):
+    """A simulator plugin's worst day, against a real translator process: every spelling the spec allows is
+    translated, everything it forbids is counted, no restart, and its end of stream ends the launch."""
+    import threading
+
+    import msgpack
+    import zmq
+
+    from test_nodes import tiny_checkpoint
+
+    from sonar_realism.wire import encode_frame
+
+    context = zmq.Context.instance()
+    publisher = context.socket(zmq.XPUB)
+    publisher.linger = 1000
+    endpoint = publisher.bind_to_random_port("tcp://127.0.0.1")
+    graph = build_graph({"launch": {"name": "hostile", "mode": "process", "transport": "tcp",
+                                    "out": str(tmp_path / "run"), "ready_timeout_s": 60.0},
+                         "nodes": {"translator": {"type": "translator", "restart": "on-failure",
+                                                  "inputs": {"frames": {"source": f"tcp://127.0.0.1:{endpoint}",
+                                                                        "policy": "fifo", "capacity": 64,
+                                                                        "max_age_s": 30.0}},
+                                                  "params": {"checkpoint": tiny_checkpoint(tmp_path), "n": 2,
+                                                             "temperature": 0.0, "device": "cpu", "batch": 4}},
+                                   "recorder": {"type": "recorder", "inputs": {"frames": "translator.frames"},
+                                                "params": {"path": "{out}/translated"}}}})
+    result: list = []
+    runner = threading.Thread(target=lambda: result.append(launch(graph, install_signal_handlers=False)))
+    runner.start()
+    try:
+        assert publisher.poll(PROCESS_TIMEOUT_S * 1000), "the translator never subscribed"
+        publisher.recv()
+        values = np.random.default_rng(0).random((40, 24))
+        ranges, bearings = uniform_ranges(40, 12.0), uniform_azimuths(24, 2.0)
+
+        def frame(seq, intensity, **fields):
+            return encode_frame(SonarImage(intensity, ranges, bearings, seq=seq, **fields), "sonar/sim")
+
+        def with_header(parts, **changes):
+            header = {**msgpack.unpackb(bytes(parts[1])), **changes}
+            return [parts[0], msgpack.packb(header, use_bin_type=True, datetime=False), parts[2]]
+
+        nan = values.astype(np.float32)
+        nan[3, 3] = np.nan
+        messages = [
+            frame(0, values.astype("<f4")),
+            frame(1, values.astype(">f4")),
+            frame(2, np.round(values * 65535).astype(">u2")),
+            frame(3, values.astype(">f8")),
+            frame(4, np.round(values * 255).astype(np.uint8)[None]),               # [1, ranges, beams]
+            frame(5, values.astype("<f4"), stamp_ns=1_000_000_000),               # simulation time
+            frame(6, np.stack([values, values]).astype("<f4")),                   # 2 samples: cannot translate
+            with_header(frame(7, values.astype("<f4")), meta={"t": msgpack.Timestamp(5, 0)}),
+            [b"sonar/sim", b"\xc1 garbage", b""],
+            with_header(frame(8, values.astype("<f4")), dtype="<f4")[:2] + [nan.tobytes()],
+            [b"sonar/sim2", *frame(9, values.astype("<f4"))[1:]],                 # a topic nobody takes
+        ]
+        for parts in messages:
+            publisher.send_multipart(parts, copy=False)
+        publisher.send_multipart([b"sonar/sim", msgpack.packb(
+            {"v": 1, "type": "status", "status": {"node": "sim", "state": "stopped", "end_of_stream": True}})])
+        runner.join(PROCESS_TIMEOUT_S)
+    finally:
+        publisher.close()
+    assert not runner.is_alive() and result, "the launch did not end on the publisher's end of stream"
+    code, summary = result[0]
+    assert code == 0 and summary["translator"]["restarts"] == 0
+    totals = summary["translator"]["totals"]
+    assert totals["malformed"] == 4 and totals["other_topic"] == 1 and totals["stale"] == 0
+    translated = {f.seq: f.intensity for f in read_frames(tmp_path / "run" / "translated")}
+    assert sorted(translated) == [0, 1, 2, 3, 4, 5]
+    for seq in (1, 2, 3, 4, 5):  # every byte order and the sample axis translate like the plain float frame
+        np.testing.assert_allclose(translated[seq], translated[0], atol=0.02)
