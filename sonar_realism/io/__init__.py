@@ -38,7 +38,8 @@ def sniff(path: str | Path) -> str | None:
         return "tiff"
     if head.startswith(npz.ZIP_MAGIC):
         return "npz"
-    return oculus.sniff(head)
+    # A raw Oculus capture need not start on a message boundary: look for a ping header further in.
+    return oculus.sniff(head) or ("oculus_raw" if oculus.starts_mid_capture(path) else None)
 
 
 def read_frames(path: str | Path, report: ReadReport | None = None) -> Iterator[SonarImage]:
