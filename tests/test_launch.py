@@ -323,3 +323,10 @@ def test_nothing_an_external_publisher_sends_takes_the_translator_down(tmp_path)
     assert sorted(translated) == [0, 1, 2, 3, 4, 5]
     for seq in (1, 2, 3, 4, 5):  # every byte order and the sample axis translate like the plain float frame
         np.testing.assert_allclose(translated[seq], translated[0], atol=0.02)
+
+
+def test_a_status_endpoint_can_be_fixed_in_the_launch_file(tmp_path):
+    graph = build_graph({"launch": {"name": "s", "out": str(tmp_path)},
+                         "nodes": {"sim": {**SIM, "bind": {"status": "tcp://127.0.0.1:5599"}}}})
+    assert graph.nodes["sim"].wiring.status_endpoint == "tcp://127.0.0.1:5599"
+    assert graph.resolved_config()["nodes"]["sim"]["wiring"]["status_endpoint"] == "tcp://127.0.0.1:5599"

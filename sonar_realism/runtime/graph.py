@@ -12,6 +12,7 @@ out = "out/demo"             # run folder; "{out}" in any string parameter becom
 type = "sim_source"          # module nodes.sim_source, or "package.module", or "module:Class"
 params = { count = 8 }
 bind = { frames = "tcp://0.0.0.0:5601" }   # optional fixed endpoint of an output (other hosts connect)
+                             # bind.status: a fixed endpoint for the node's status messages
 restart = "on-failure"       # or "never" (default); at most max_restarts times
 
 [nodes.translator]
@@ -43,6 +44,7 @@ from sonar_realism.runtime.wiring import InputWiring, OutputWiring, Wiring
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*$")
 _ENDPOINT = re.compile(r"^(tcp|ipc|inproc)://")
 _run_counter = itertools.count()
+STATUS_BIND = "status"  # `bind.status` fixes where a node publishes its status messages
 
 
 @dataclass(frozen=True)
@@ -201,7 +203,8 @@ def build_graph(data: dict[str, Any], out_dir: str | None = None) -> LaunchGraph
             inputs={input_name: _input_wiring(name, input_name, spec_in, outputs, edges)
                     for input_name, spec_in in inputs[name].items()},
             outputs={output_name: out for (node, output_name), out in outputs.items() if node == name},
-            status_endpoint=endpoints.make(name, "status", reconnect=spec.restart != "never"),
+            status_endpoint=spec.bind.get(STATUS_BIND) or endpoints.make(name, "status",
+                                                                         reconnect=spec.restart != "never"),
             status_subscribers=1,
             heartbeat_s=settings.heartbeat_s,
             ready_timeout_s=settings.ready_timeout_s,
@@ -303,9 +306,10 @@ def _assign_outputs(specs: dict[str, NodeSpec], classes: dict[str, type[Node]],
     outputs = {}
     edges: dict[tuple[str, str], tuple[str, str]] = {}
     for name, node_class in classes.items():
-        unknown = sorted(set(specs[name].bind) - set(node_class.OUTPUTS))
+        unknown = sorted(set(specs[name].bind) - set(node_class.OUTPUTS) - {STATUS_BIND})
         if unknown:
-            raise ConfigError(f"nodes.{name}.bind: {', '.join(unknown)} not an output of {specs[name].type}")
+            raise ConfigError(f"nodes.{name}.bind: {', '.join(unknown)} not an output of {specs[name].type} "
+                              f"(nor {STATUS_BIND!r}, the node's status endpoint)")
         reconnect = specs[name].restart != "never"
         for output in node_class.OUTPUTS:
             consumers = [(consumer, input_name, spec) for consumer, ins in inputs.items()
