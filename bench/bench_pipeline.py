@@ -4,8 +4,8 @@ translator's own compute time measured in the same run (the library's `Translato
     python bench/bench_pipeline.py [--frames N] [--device auto|cpu|cuda]     (or: python bench/run.py pipeline)
 
 Set-up, per n (samples per frame) and transport (ipc, tcp on loopback):
-- The translator is the shipped node (`nodes.translator`, shipped checkpoint, seed 0, batch 1 = one ping per
-  model call, as live) started the way the launcher's process mode starts it: its own OS process via
+- The translator is the shipped node (`sonar_realism_nodes.translator`, shipped checkpoint, seed 0, batch 1 = one
+  ping per model call, as live) started the way the launcher's process mode starts it: its own OS process via
   `python -m sonar_realism.runtime.process SPEC.json`. Both edges are lossless (PUSH/PULL, the in-graph default).
   The only change is `TimedTranslatorNode`, which adds the model time of each call (and when it started) to
   the output's provenance, so that each frame's own compute can be subtracted from its end-to-end latency.
@@ -55,13 +55,15 @@ import zmq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nodes.translator import TranslatorNode  # noqa: E402
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.runtime.delivery import InputPolicy  # noqa: E402
+from sonar_realism.runtime.graph import resolve_node_type  # noqa: E402
 from sonar_realism.runtime.node import end_of_stream_message  # noqa: E402
 from sonar_realism.runtime.process import node_spec  # noqa: E402
 from sonar_realism.runtime.wiring import InputWiring, OutputWiring, Wiring  # noqa: E402
 from sonar_realism.wire import FRAME_TYPE, decode_message, encode_frame  # noqa: E402
+
+TranslatorNode = resolve_node_type("translator")
 
 SAMPLES = (1, 8)
 TRANSPORTS = ("ipc", "tcp")

@@ -257,7 +257,6 @@ def test_nothing_an_external_publisher_sends_takes_the_translator_down(tmp_path)
 
     import msgpack
     import zmq
-
     from test_nodes import tiny_checkpoint
 
     from sonar_realism.wire import encode_frame
@@ -330,3 +329,20 @@ def test_a_status_endpoint_can_be_fixed_in_the_launch_file(tmp_path):
                          "nodes": {"sim": {**SIM, "bind": {"status": "tcp://127.0.0.1:5599"}}}})
     assert graph.nodes["sim"].wiring.status_endpoint == "tcp://127.0.0.1:5599"
     assert graph.resolved_config()["nodes"]["sim"]["wiring"]["status_endpoint"] == "tcp://127.0.0.1:5599"
+
+
+def test_nodes_install_under_the_projects_name_and_never_as_a_top_level_nodes_package(monkeypatch):
+    import runpy
+
+    import setuptools
+
+    captured: dict = {}
+    monkeypatch.setattr(setuptools, "setup", lambda **kwargs: captured.update(kwargs))
+    monkeypatch.chdir(REPO)
+    runpy.run_path(str(REPO / "setup.py"))
+    assert "sonar_realism_nodes" in captured["packages"] and "sonar_realism.runtime" in captured["packages"]
+    assert not any(p == "nodes" or p.startswith("nodes.") for p in captured["packages"])
+    assert (REPO / captured["package_dir"]["sonar_realism_nodes"] / "translator.py").is_file()
+    from sonar_realism.runtime.graph import resolve_node_type
+
+    assert resolve_node_type("translator").__module__ == "sonar_realism_nodes.translator"

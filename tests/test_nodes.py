@@ -79,8 +79,9 @@ def test_seeded_translation_is_reproducible_and_unseeded_is_not(translator):
 
 
 def test_translator_params_are_validated():
-    from nodes.translator import TranslatorParams
+    from sonar_realism.runtime.graph import resolve_node_type
 
+    TranslatorParams = resolve_node_type("translator").PARAMS  # noqa: N806 - a class
     with pytest.raises(ConfigError, match="n"):
         from_dict(TranslatorParams, {"n": 0})
     with pytest.raises(ConfigError, match="unknown key"):

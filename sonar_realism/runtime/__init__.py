@@ -1,4 +1,4 @@
-"""The streaming runtime: nodes, delivery policies, launch graphs and their supervisor (docs/streaming.md).
+"""The streaming runtime: nodes, delivery policies, launch graphs and their supervisor (docs/nodes.md).
 
 This package is the only part of the library that imports zmq; models, sim, evaluate and diagnose never do.
 """

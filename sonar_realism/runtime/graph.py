@@ -9,7 +9,7 @@ host = "127.0.0.1"           # tcp binds here; loopback unless you mean to serve
 out = "out/demo"             # run folder; "{out}" in any string parameter becomes this folder
 
 [nodes.sim]
-type = "sim_source"          # module nodes.sim_source, or "package.module", or "module:Class"
+type = "sim_source"          # module sonar_realism_nodes.sim_source, or "package.module", or "module:Class"
 params = { count = 8 }
 bind = { frames = "tcp://0.0.0.0:5601" }   # optional fixed endpoint of an output (other hosts connect)
                              # bind.status: a fixed endpoint for the node's status messages
@@ -27,12 +27,15 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.util
 import itertools
 import os
 import re
 import socket
+import sys
 import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 from sonar_realism.config import from_dict, to_dict
@@ -44,6 +47,7 @@ from sonar_realism.runtime.wiring import InputWiring, OutputWiring, Wiring
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*$")
 _ENDPOINT = re.compile(r"^(tcp|ipc|inproc)://")
 _run_counter = itertools.count()
+NODES_PACKAGE = "sonar_realism_nodes"  # the repository's nodes/ folder (setup.py)
 STATUS_BIND = "status"  # `bind.status` fixes where a node publishes its status messages
 
 
@@ -127,10 +131,12 @@ class LaunchGraph:
 
 
 def resolve_node_type(type_name: str) -> type[Node]:
-    """`translator` -> nodes.translator.NODE; `pkg.mod` -> pkg.mod.NODE; `pkg.mod:Class` -> that class."""
+    """`translator` -> sonar_realism_nodes.translator.NODE; `pkg.mod` -> pkg.mod.NODE; `pkg.mod:Class` -> that
+    class."""
     module_name, _, attribute = type_name.partition(":")
     if "." not in module_name and not attribute:
-        module_name = f"nodes.{module_name}"
+        _load_builtin_nodes()
+        module_name = f"{NODES_PACKAGE}.{module_name}"
     try:
         module = importlib.import_module(module_name)
     except ImportError as error:
@@ -140,6 +146,22 @@ def resolve_node_type(type_name: str) -> type[Node]:
         raise ConfigError(f"unknown node type {type_name!r}: {module_name} has no Node subclass "
                           f"{attribute or 'NODE'}")
     return node_class
+
+
+def _load_builtin_nodes() -> None:
+    """The built-in nodes are the repository's `nodes/` folder, installed as `sonar_realism_nodes`. They are taken
+    from the same checkout as this library when there is one (a source tree, an editable install made before the
+    package had that name), else from the installed package."""
+    if NODES_PACKAGE in sys.modules:
+        return
+    folder = Path(__file__).resolve().parents[2] / "nodes"
+    if not (folder / "__init__.py").is_file():
+        return  # a regular install: sonar_realism_nodes is an ordinary package
+    spec = importlib.util.spec_from_file_location(NODES_PACKAGE, folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    sys.modules[NODES_PACKAGE] = module
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
 
 
 def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:

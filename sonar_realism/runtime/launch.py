@@ -1,6 +1,6 @@
 """`sonar-realism launch FILE [--set node.param=value] [--out DIR] [--mode inproc|process]`.
 
-Reads a TOML launch file (format: sonar_realism/runtime/graph.py, docs/streaming.md), checks the whole
+Reads a TOML launch file (format: sonar_realism/runtime/graph.py, docs/nodes.md), checks the whole
 graph before starting anything, saves the resolved configuration in the run folder (resolved.json),
 runs it, and writes each node's last status to run_summary.json. Ctrl-C (or SIGTERM) shuts down in
 order; a second Ctrl-C is handled the same way (the escalation is the launcher's job, not the user's).
