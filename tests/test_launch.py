@@ -346,3 +346,42 @@ def test_nodes_install_under_the_projects_name_and_never_as_a_top_level_nodes_pa
     from sonar_realism.runtime.graph import resolve_node_type
 
     assert resolve_node_type("translator").__module__ == "sonar_realism_nodes.translator"
+
+
+def test_lossless_edges_lose_nothing_when_the_translator_is_killed_mid_run(tmp_path):
+    """SIGKILL the translator process while frames are in flight: the restarted one gets every frame it had
+    not passed on, the recorder drops what it already had, and all 2,000 frames arrive exactly once, in order."""
+    import threading
+
+    from test_nodes import tiny_checkpoint
+
+    count = 2000
+    write_frames((SonarImage(np.full((32, 16), i % 251, np.uint8), uniform_ranges(32, 5.0), uniform_azimuths(16, 1.0),
+                             seq=i) for i in range(count)), tmp_path / "rec")
+    run = tmp_path / "run"
+    graph = build_graph({"launch": {"name": "kill", "mode": "process", "out": str(run), "ready_timeout_s": 60.0},
+                         "nodes": {"replay": {"type": "file_replay", "params": {"path": str(tmp_path / "rec"),
+                                                                                "speed": 0.0}},
+                                   "translator": {"type": "translator", "inputs": {"frames": "replay.frames"},
+                                                  "restart": "on-failure",
+                                                  "params": {"checkpoint": tiny_checkpoint(tmp_path), "n": 1,
+                                                             "seed": 0, "device": "cpu", "batch": 4}},
+                                   "recorder": {"type": "recorder", "inputs": {"frames": "translator.frames"},
+                                                "params": {"path": "{out}/translated"}}}})
+    result: list = []
+    runner = threading.Thread(target=lambda: result.append(launch(graph, install_signal_handlers=False)))
+    runner.start()
+    index = run / "translated" / "frames.jsonl"
+    deadline = time.monotonic() + PROCESS_TIMEOUT_S
+    while not (index.exists() and index.read_text().count("\n") >= 300):  # under load, mid-run
+        assert runner.is_alive() and time.monotonic() < deadline, "no frames flowed"
+        time.sleep(0.02)
+    translators = _processes_mentioning(str(run / "nodes" / "translator.json"))
+    assert len(translators) == 1
+    os.kill(translators[0], signal.SIGKILL)
+    runner.join(PROCESS_TIMEOUT_S)
+    assert not runner.is_alive() and result
+    code, summary = result[0]
+    assert code == 0 and summary["translator"]["restarts"] == 1
+    assert [f.seq for f in read_frames(run / "translated")] == list(range(count))
+    assert summary["replay"]["totals"]["resent"] > 0  # the killed translator had frames in flight
