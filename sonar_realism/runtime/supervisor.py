@@ -85,10 +85,7 @@ class ProcessWorker:
         log_path = run_dir / "logs" / f"{node.name}.log"
         log_path.parent.mkdir(parents=True, exist_ok=True)
         self.log_file = open(log_path, "ab")  # noqa: SIM115 - closed in wait()/when the process ends
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p),
-               # torch's OpenMP workers spin for a while after each model call unless told to sleep, taking
-               # the cores the sockets and the other nodes need (docs/nodes.md).
-               "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY", "PASSIVE")}
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
         self.command = [sys.executable, "-m", "sonar_realism.runtime.process", str(spec_path)]
         self.env = env
         self.process: subprocess.Popen | None = None
