@@ -1,7 +1,7 @@
 """Streaming pipeline cost: source -> translator node -> receiver over real ZeroMQ sockets, against the
 translator's own compute time measured in the same run (the library's `Translator.translate`, no sockets).
 
-    python bench/bench_pipeline.py [--frames N] [--device auto|cpu|cuda]     (or: python bench/run.py pipeline)
+    python bench/bench_pipeline.py [--frames N] [--device auto|cpu|cuda] [--samples 1,8]   (or: bench/run.py pipeline)
 
 Set-up, per n (samples per frame) and transport (ipc, tcp on loopback):
 - The translator is the shipped node (`sonar_realism_nodes.translator`, shipped checkpoint, seed 0, batch 1 = one
@@ -406,7 +406,7 @@ def row(n: int, transport: str, compute: Series, latency: Series, throughput: Se
     }
 
 
-def run(frames: int = DEFAULT_FRAMES, device: str = "auto") -> list[dict]:
+def run(frames: int = DEFAULT_FRAMES, device: str = "auto", samples: Sequence[int] = SAMPLES) -> list[dict]:
     from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when measuring
 
     translator = Translator.from_checkpoint(DEFAULT_CHECKPOINT, device=device)
@@ -415,7 +415,7 @@ def run(frames: int = DEFAULT_FRAMES, device: str = "auto") -> list[dict]:
     rows = []
     try:
         with tempfile.TemporaryDirectory(prefix="bench-pipeline-") as folder:
-            for n in SAMPLES:
+            for n in samples:
                 rows += measure(n, frames, pool, translator, context, device, Path(folder))
     finally:
         context.term()
@@ -428,8 +428,10 @@ if __name__ == "__main__":
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES,
                         help=f"timed frames per series (default {DEFAULT_FRAMES}; 5 series per n)")
     parser.add_argument("--device", default="auto", help="auto (cuda when available), cpu or cuda")
+    parser.add_argument("--samples", default=",".join(map(str, SAMPLES)),
+                        help=f"comma-separated n (samples per frame) to measure (default {SAMPLES})")
     args = parser.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from run import markdown
 
-    print(markdown(run(args.frames, args.device)))
+    print(markdown(run(args.frames, args.device, [int(n) for n in args.samples.split(",")])))

@@ -3,7 +3,8 @@
     python bench/bench_wire.py            (or: python bench/run.py wire)
 
 Transports: inproc, ipc and tcp on loopback (the issue's goal, ratio <= 1.2, is for ipc and tcp; inproc moves
-no bytes at all, so any codec work is a large ratio there). Both sides of a PAIR socket live in one thread, so a row's time is the whole trip of one message: the raw
+no bytes at all, so any codec work is a large ratio there). Both sides of a PAIR socket live in one thread, so a
+row's time is the whole trip of one message: the raw
 baseline sends pre-built [topic, header, data] parts with copy=False and wraps the received data part in
 np.frombuffer (the least any receiver does); the wire row builds the header with encode_frame and rebuilds a
 validated SonarImage with decode_frame. A third row, raw + SonarImage, builds the same validated frame from
