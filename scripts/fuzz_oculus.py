@@ -68,7 +68,7 @@ def seeds() -> list[bytes]:
 
 def main() -> None:
     corpus = [a for a in sys.argv[1:] if not a.startswith("-")]
-    if corpus:
+    if corpus and not any(a.startswith("-merge") for a in sys.argv):  # seeds go into the corpus being fuzzed
         folder = Path(corpus[0])
         folder.mkdir(parents=True, exist_ok=True)
         for index, seed in enumerate(seeds()):
