@@ -65,8 +65,8 @@ def rss_and_fds(pid: int) -> tuple[float, int] | None:
         fds = len(os.listdir(f"/proc/{pid}/fd"))
     except OSError:
         return None
-    kib = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:"))
-    return kib / 1024.0, fds
+    kib = [int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:")]
+    return (kib[0] / 1024.0, fds) if kib else None  # no VmRSS: the process has exited (a zombie)
 
 
 def make_recording(path: Path, frames: int) -> None:
