@@ -1,11 +1,11 @@
 """Streaming pipeline cost: source -> translator node -> receiver over real ZeroMQ sockets, against the
 translator's own compute time measured in the same run (the library's `Translator.translate`, no sockets).
 
-    python bench/bench_pipeline.py [--frames N] [--device auto|cpu|cuda]     (or: python bench/run.py pipeline)
+    python bench/bench_pipeline.py [--frames N] [--device auto|cpu|cuda] [--samples 1,8]   (or: bench/run.py pipeline)
 
 Set-up, per n (samples per frame) and transport (ipc, tcp on loopback):
-- The translator is the shipped node (`nodes.translator`, shipped checkpoint, seed 0, batch 1 = one ping per
-  model call, as live) started the way the launcher's process mode starts it: its own OS process via
+- The translator is the shipped node (`sonar_realism_nodes.translator`, shipped checkpoint, seed 0, batch 1 = one
+  ping per model call, as live) started the way the launcher's process mode starts it: its own OS process via
   `python -m sonar_realism.runtime.process SPEC.json`. Both edges are lossless (PUSH/PULL, the in-graph default).
   The only change is `TimedTranslatorNode`, which adds the model time of each call (and when it started) to
   the output's provenance, so that each frame's own compute can be subtracted from its end-to-end latency.
@@ -49,20 +49,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 import zmq
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nodes.translator import TranslatorNode  # noqa: E402
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.runtime.delivery import InputPolicy  # noqa: E402
+from sonar_realism.runtime.graph import resolve_node_type  # noqa: E402
 from sonar_realism.runtime.node import end_of_stream_message  # noqa: E402
 from sonar_realism.runtime.process import node_spec  # noqa: E402
 from sonar_realism.runtime.wiring import InputWiring, OutputWiring, Wiring  # noqa: E402
 from sonar_realism.wire import FRAME_TYPE, decode_message, encode_frame  # noqa: E402
+
+TranslatorNode = resolve_node_type("translator")
 
 SAMPLES = (1, 8)
 TRANSPORTS = ("ipc", "tcp")
@@ -211,13 +212,11 @@ def receive(node: TranslatorProcess, timeout_s: float = RECV_TIMEOUT_S) -> Recei
         raise RuntimeError(f"{node.transport} n={node.n}: no output within {timeout_s} s "
                            f"(exit code {node.process.poll()}); node log:\n{node.log_tail()}")
     parts = node.sink.recv_multipart(copy=False)
-    topic, kind, body = decode_message(parts)
+    message = decode_message(parts)
     perf_s, wall_ns = time.perf_counter(), time.time_ns()
-    if kind != FRAME_TYPE:
-        raise RuntimeError(f"{node.transport} n={node.n}: expected a frame on {topic}, got {body}")
-    # decode_message does not surface sent_ns; reading it again here is outside the timed span.
-    sent_ns = int(msgpack.unpackb(parts[1].bytes).get("sent_ns", 0))
-    return Received(body, perf_s, wall_ns, sent_ns)  # type: ignore[arg-type]
+    if message.kind != FRAME_TYPE:
+        raise RuntimeError(f"{node.transport} n={node.n}: expected a frame on {message.topic}, got {message.body}")
+    return Received(message.body, perf_s, wall_ns, message.sent_ns or 0)  # type: ignore[arg-type]
 
 
 def stop_translator(node: TranslatorProcess) -> None:
@@ -226,8 +225,8 @@ def stop_translator(node: TranslatorProcess) -> None:
         node.source.send_multipart(end_of_stream_message(TOPIC_IN, "bench", "finished"), flags=zmq.NOBLOCK)
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline and node.sink.poll(100):
-            _, kind, body = decode_message(node.sink.recv_multipart(copy=False))
-            if kind != FRAME_TYPE and body.get("end_of_stream"):  # type: ignore[union-attr]
+            message = decode_message(node.sink.recv_multipart(copy=False))
+            if message.kind != FRAME_TYPE and message.body.get("end_of_stream"):  # type: ignore[union-attr]
                 break
         node.process.wait(timeout=10.0)
     except (zmq.ZMQError, subprocess.TimeoutExpired):
@@ -407,7 +406,7 @@ def row(n: int, transport: str, compute: Series, latency: Series, throughput: Se
     }
 
 
-def run(frames: int = DEFAULT_FRAMES, device: str = "auto") -> list[dict]:
+def run(frames: int = DEFAULT_FRAMES, device: str = "auto", samples: Sequence[int] = SAMPLES) -> list[dict]:
     from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when measuring
 
     translator = Translator.from_checkpoint(DEFAULT_CHECKPOINT, device=device)
@@ -416,7 +415,7 @@ def run(frames: int = DEFAULT_FRAMES, device: str = "auto") -> list[dict]:
     rows = []
     try:
         with tempfile.TemporaryDirectory(prefix="bench-pipeline-") as folder:
-            for n in SAMPLES:
+            for n in samples:
                 rows += measure(n, frames, pool, translator, context, device, Path(folder))
     finally:
         context.term()
@@ -429,8 +428,10 @@ if __name__ == "__main__":
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES,
                         help=f"timed frames per series (default {DEFAULT_FRAMES}; 5 series per n)")
     parser.add_argument("--device", default="auto", help="auto (cuda when available), cpu or cuda")
+    parser.add_argument("--samples", default=",".join(map(str, SAMPLES)),
+                        help=f"comma-separated n (samples per frame) to measure (default {SAMPLES})")
     args = parser.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from run import markdown
 
-    print(markdown(run(args.frames, args.device)))
+    print(markdown(run(args.frames, args.device, [int(n) for n in args.samples.split(",")])))

@@ -6,6 +6,7 @@ columns, measured in the same run. Results also go to `bench/results.json` for d
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import json
 import os
@@ -15,7 +16,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["oculus", "wire", "geometry", "sim", "model", "pipeline", "diagnose"]
+ORDER = ["oculus", "wire", "geometry", "sim", "model", "pipeline", "diagnose", "soak"]
+ON_REQUEST = {"soak"}  # minutes long: run by name only
 
 
 def load(name: str):
@@ -47,8 +49,26 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def main(names: list[str]) -> int:
-    names = names or [n for n in ORDER if (HERE / f"bench_{n}.py").exists()]
+def available() -> list[str]:
+    found = sorted(p.stem.removeprefix("bench_") for p in HERE.glob("bench_*.py"))
+    return [n for n in ORDER if n in found] + [n for n in found if n not in ORDER]
+
+
+def parse_names(argv: list[str]) -> list[str]:
+    names = available()
+    parser = argparse.ArgumentParser(prog="python bench/run.py", description=__doc__.split("\n\n")[0],
+                                     epilog=f"benchmarks: {', '.join(names)}")
+    parser.add_argument("names", nargs="*", metavar="NAME",
+                        help="benchmarks to run (default: every one except soak, which takes minutes)")
+    chosen = parser.parse_args(argv).names
+    unknown = [n for n in chosen if n not in names]
+    if unknown:
+        parser.error(f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(names)}")
+    return chosen or [n for n in names if n not in ON_REQUEST]
+
+
+def main(argv: list[str]) -> int:
+    names = parse_names(argv)
     results = {"machine": f"{cpu_model()}, {os.cpu_count()} cores", "date": time.strftime("%Y-%m-%d"),
                "python": platform.python_version(), "benchmarks": {}}
     print(f"machine: {results['machine']}  date: {results['date']}\n")

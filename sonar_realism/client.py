@@ -85,10 +85,10 @@ class FrameSubscriber:
             remaining_ms = max(0, round((deadline - time.monotonic()) * 1000.0))
             if not self._socket.poll(remaining_ms, zmq.POLLIN):
                 return None
-            topic, kind, body = decode_message(self._socket.recv_multipart(copy=False))
-            if kind == FRAME_TYPE:
-                self.last_topic = topic
-                return body
+            message = decode_message(self._socket.recv_multipart(copy=False))
+            if message.kind == FRAME_TYPE:
+                self.last_topic = message.topic
+                return message.body
 
     def close(self) -> None:
         self._socket.close()

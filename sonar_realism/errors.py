@@ -30,7 +30,17 @@ class UnsupportedFormatError(FormatError):
 
 
 class WireError(SonarRealismError, ValueError):
-    """A ZeroMQ message does not follow docs/wire-format.md."""
+    """A ZeroMQ message does not follow docs/wire-format.md.
+
+    `topic` names the message's topic (None when the topic part itself is unreadable), `field` the part or
+    header field that is wrong (the names of docs/wire-format.md, "Errors").
+    """
+
+    def __init__(self, field: str, message: str, topic: str | None = None) -> None:
+        self.field = field
+        self.topic = topic
+        where = f"topic {topic!r}: " if topic is not None else ""
+        super().__init__(f"{where}{field}: {message}")
 
 
 class ConfigError(SonarRealismError, ValueError):

@@ -110,8 +110,7 @@ def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarra
         # cv2 has no 32-bit unsigned remap; float64 holds every uint32 exactly.
         out = cv2.remap(image.astype(np.float64), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         return np.clip(np.rint(out), 0, np.iinfo(np.uint32).max).astype(np.uint32)
-    source = image if image.dtype.isnative else image.astype(image.dtype.newbyteorder("="))
-    return cv2.remap(source, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
 def _axes_key(frame: SonarImage) -> tuple[bytes, bytes]:
@@ -165,7 +164,12 @@ def polar_to_fan(frame: SonarImage, width_px: int, layout: FanLayout | None = No
     """
     layout = layout or fan_layout(frame, width_px)
     map_x, map_y = _fan_maps(frame, layout)
-    return _remap(frame.intensity, map_x, map_y)
+    return _remap(_native(frame.intensity), map_x, map_y)
+
+
+def _native(intensity: np.ndarray) -> np.ndarray:
+    """OpenCV reads raw bytes: big-endian samples are swapped once, before any filter or remap sees them."""
+    return intensity if intensity.dtype.isnative else intensity.astype(intensity.dtype.newbyteorder("="))
 
 
 def fan_to_polar(image: np.ndarray, layout: FanLayout, ranges_m: np.ndarray,
@@ -230,7 +234,7 @@ def _resample(frame: SonarImage, ranges: np.ndarray, azimuths: np.ndarray) -> So
 
     key = ("grid", *_axes_key(frame), ranges.tobytes(), azimuths.tobytes())
     map_x, map_y, row_shrink, column_shrink = _MAPS.get(key, build)
-    intensity = _antialias(frame.intensity, row_shrink, column_shrink)
+    intensity = _antialias(_native(frame.intensity), row_shrink, column_shrink)
     return frame.replace(intensity=_remap(intensity, map_x, map_y), ranges_m=ranges, azimuths_rad=azimuths)
 
 

@@ -15,6 +15,7 @@ import functools
 import math
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
@@ -74,96 +75,111 @@ def encode_frame(frame: SonarImage, topic: str, provenance: dict | None = None) 
     }
     if provenance is not None:
         if not isinstance(provenance, Mapping):
-            raise WireError(f"provenance: expected a dict, got {type(provenance).__name__}")
+            raise WireError("provenance", f"expected a dict, got {type(provenance).__name__}", topic)
         header["provenance"] = dict(provenance)
-    return [topic_bytes, _pack_header(header), memoryview(intensity).cast("B")]
+    return [topic_bytes, _pack_header(header, topic), memoryview(intensity).cast("B")]
 
 
 def encode_status(topic: str, status: dict) -> list:
     """Parts [topic, header] of one status/heartbeat message (fields: docs/wire-format.md, "Status")."""
     topic_bytes = _encode_topic(topic)
     if not isinstance(status, Mapping):
-        raise WireError(f"status: expected a dict, got {type(status).__name__}")
-    checked = _check_status(dict(status))
+        raise WireError("status", f"expected a dict, got {type(status).__name__}", topic)
+    checked = _check_status(dict(status), topic)
     header = {"v": WIRE_VERSION, "type": STATUS_TYPE, "sent_ns": time.time_ns(), "status": checked}
-    return [topic_bytes, _pack_header(header)]
+    return [topic_bytes, _pack_header(header, topic)]
 
 
-def decode_message(parts: Sequence[Any]) -> tuple[str, str, SonarImage | dict]:
-    """(topic, type, SonarImage or status dict) of one received multipart message; WireError if malformed."""
+@dataclass(frozen=True)
+class Message:
+    """One received message: a frame (`body` is a SonarImage) or a status report (`body` is its status map)."""
+
+    topic: str
+    kind: str                 # FRAME_TYPE or STATUS_TYPE
+    body: SonarImage | dict
+    sent_ns: int | None = None  # the publisher's wall-clock send time, when it sent one
+
+
+def decode_message(parts: Sequence[Any]) -> Message:
+    """The frame or status report in one received multipart message; WireError naming topic and field if not."""
     if not isinstance(parts, Sequence) or len(parts) not in (2, 3):
         count = len(parts) if isinstance(parts, Sequence) else type(parts).__name__
-        raise WireError(f"message: expected 3 parts [topic, header, data] or 2 [topic, header], got {count}")
+        topic = _topic_for_error(parts[0]) if isinstance(parts, Sequence) and parts else None
+        raise WireError("parts", f"expected 3 parts [topic, header, data] or 2 [topic, header], got {count}", topic)
     topic = _decode_topic(parts[0])
-    header = _unpack_header(parts[1])
+    header = _unpack_header(parts[1], topic)
     kind = header.get("type")
+    sent_ns = header.get("sent_ns")
+    if sent_ns is not None and not _is_uint64(sent_ns):
+        raise WireError("sent_ns", f"expected an unsigned 64-bit int (ns since the Unix epoch), got {sent_ns!r}",
+                        topic)
     if kind == FRAME_TYPE:
         if len(parts) != 3:
-            raise WireError(f"topic {topic!r}: a frame message has 3 parts [topic, header, data], got {len(parts)}")
-        return topic, FRAME_TYPE, _decode_frame_body(topic, header, parts[2])
+            raise WireError("parts", f"a frame message has 3 parts [topic, header, data], got {len(parts)}", topic)
+        return Message(topic, FRAME_TYPE, _decode_frame_body(topic, header, parts[2]), sent_ns)
     if kind == STATUS_TYPE:
         if len(parts) != 2:
-            raise WireError(f"topic {topic!r}: a status message has 2 parts [topic, header], got {len(parts)}")
+            raise WireError("parts", f"a status message has 2 parts [topic, header], got {len(parts)}", topic)
         _require_keys(topic, header, {"status"})
         status = header.get("status")
         if not isinstance(status, dict):
-            raise WireError(f"topic {topic!r}: header field 'status': expected a map")
-        return topic, STATUS_TYPE, _check_status(status, topic)
-    raise WireError(f"topic {topic!r}: header field 'type': expected {FRAME_TYPE!r} or {STATUS_TYPE!r}, "
-                    f"got {kind!r}")
+            raise WireError("status", f"expected a map, got {type(status).__name__}", topic)
+        return Message(topic, STATUS_TYPE, _check_status(status, topic), sent_ns)
+    raise WireError("type", f"expected {FRAME_TYPE!r} or {STATUS_TYPE!r}, got {kind!r}", topic)
 
 
 def decode_frame(parts: Sequence[Any]) -> tuple[str, SonarImage]:
     """(topic, SonarImage) of a frame message; WireError if the message is malformed or not a frame."""
-    topic, kind, body = decode_message(parts)
-    if kind != FRAME_TYPE:
-        raise WireError(f"topic {topic!r}: expected a frame message, got type {kind!r}")
-    return topic, body
+    message = decode_message(parts)
+    if message.kind != FRAME_TYPE:
+        raise WireError("type", f"expected a frame message, got type {message.kind!r}", message.topic)
+    return message.topic, message.body
 
 
 def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
-    where = f"topic {topic!r}"
     _require_keys(topic, header, _REQUIRED_FRAME_KEYS)
     dtype_name = header["dtype"]
     if not isinstance(dtype_name, str) or dtype_name not in WIRE_DTYPES:
-        raise WireError(f"{where}: header field 'dtype': unknown dtype {dtype_name!r}; "
-                        f"supported: {', '.join(sorted(WIRE_DTYPES))}")
+        raise WireError("dtype", f"unknown dtype {dtype_name!r}; supported: {', '.join(sorted(WIRE_DTYPES))}", topic)
     dtype = WIRE_DTYPES[dtype_name]
     shape = header["shape"]
     if (not isinstance(shape, list) or len(shape) not in (2, 3)
             or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in shape)):
-        raise WireError(f"{where}: header field 'shape': expected [n_ranges, n_beams] or "
-                        f"[n_samples, n_ranges, n_beams] of positive ints, got {shape!r}")
+        raise WireError("shape", f"expected [n_ranges, n_beams] or [n_samples, n_ranges, n_beams] of positive "
+                                 f"ints, got {shape!r}", topic)
     if header["layout"] != LAYOUT:
-        raise WireError(f"{where}: header field 'layout': expected {LAYOUT!r}, got {header['layout']!r}")
-    buffer = _as_buffer(data, where)
+        raise WireError("layout", f"expected {LAYOUT!r}, got {header['layout']!r}", topic)
+    for name in ("seq", "stamp_ns"):
+        if not _is_uint64(header[name]):
+            raise WireError(name, f"expected an unsigned 64-bit int, got {header[name]!r}", topic)
+    buffer = _as_buffer(data, "data", topic)
     expected = math.prod(shape) * dtype.itemsize
     if buffer.nbytes != expected:
-        raise WireError(f"{where}: data part: expected {expected} bytes for shape {shape} of {dtype_name}, "
-                        f"got {buffer.nbytes}")
+        raise WireError("data", f"expected {expected} bytes for shape {shape} of {dtype_name}, got {buffer.nbytes}",
+                        topic)
     intensity = np.frombuffer(buffer, dtype=dtype).reshape(shape)  # a view over the received message
+    if not dtype.isnative:
+        # Byte order is settled here, once: everything downstream (models, geometry, OpenCV) sees native samples.
+        intensity = intensity.astype(dtype.newbyteorder("="))
     # Read-only: over inproc the received message is the sender's own array, which a write would corrupt.
     intensity.flags.writeable = False
 
     meta = header.get("meta", {})
     if not isinstance(meta, dict):
-        raise WireError(f"{where}: header field 'meta': expected a map, got {type(meta).__name__}")
+        raise WireError("meta", f"expected a map, got {type(meta).__name__}", topic)
     provenance = header.get("provenance")
     if provenance is not None:
         if not isinstance(provenance, dict):
-            raise WireError(f"{where}: header field 'provenance': expected a map, got {type(provenance).__name__}")
+            raise WireError("provenance", f"expected a map, got {type(provenance).__name__}", topic)
         meta = {**meta, "provenance": provenance}
     scale = header.get("intensity_scale", 0.0)
     if not isinstance(scale, int | float) or isinstance(scale, bool):
-        raise WireError(f"{where}: header field 'intensity_scale': expected a number, got {scale!r}")
-    for name in ("seq", "stamp_ns"):
-        if not isinstance(header[name], int) or isinstance(header[name], bool):
-            raise WireError(f"{where}: header field {name!r}: expected an int, got {header[name]!r}")
+        raise WireError("intensity_scale", f"expected a number, got {scale!r}", topic)
     try:
         return SonarImage(
             intensity=intensity,
-            ranges_m=_decode_axis(header["ranges_m"], "ranges_m", shape[-2], where),
-            azimuths_rad=_decode_axis(header["azimuths_rad"], "azimuths_rad", shape[-1], where),
+            ranges_m=_decode_axis(header["ranges_m"], "ranges_m", shape[-2], topic),
+            azimuths_rad=_decode_axis(header["azimuths_rad"], "azimuths_rad", shape[-1], topic),
             stamp_ns=header["stamp_ns"],
             seq=header["seq"],
             frame_id=header["frame_id"],
@@ -171,7 +187,13 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
             meta=meta,
         )
     except FrameError as error:
-        raise WireError(f"{where}: invalid frame: {error}") from error
+        # FrameError messages start with the SonarImage field at fault ("intensity: NaN or inf ...").
+        field, _, reason = str(error).partition(": ")
+        raise WireError(field if reason else "frame", reason or str(error), topic) from error
+
+
+def _is_uint64(value: Any) -> bool:
+    return type(value) is int and 0 <= value < 1 << 64
 
 
 def _encode_axis(values: np.ndarray) -> dict | bytes:
@@ -192,29 +214,29 @@ def _encode_axis(values: np.ndarray) -> dict | bytes:
     return np.ascontiguousarray(values, dtype="<f8").tobytes()
 
 
-def _decode_axis(value: Any, name: str, count: int, where: str) -> np.ndarray:
+def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
     """Axis from the uniform form {start, step, count}, float64 little-endian bytes, or a list of numbers."""
     if isinstance(value, dict):
         if set(value) != {"start", "step", "count"}:
-            raise WireError(f"{where}: header field {name!r}: a uniform axis has exactly the keys start, step, "
-                            f"count; got {sorted(map(str, value))}")
+            raise WireError(name, f"a uniform axis has exactly the keys start, step, count; "
+                                  f"got {sorted(map(str, value))}", topic)
         start, step, n = value["start"], value["step"], value["count"]
         if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in (start, step)):
-            raise WireError(f"{where}: header field {name!r}: start and step must be numbers")
+            raise WireError(name, "start and step must be numbers", topic)
         if not isinstance(n, int) or n != count:
-            raise WireError(f"{where}: header field {name!r}: count {n!r} does not match the shape ({count})")
+            raise WireError(name, f"count {n!r} does not match the shape ({count})", topic)
         return _uniform_axis(float(start), float(step), count)
     if isinstance(value, bytes):
         if len(value) != 8 * count:
-            raise WireError(f"{where}: header field {name!r}: expected {count} float64 values "
-                            f"({8 * count} bytes), got {len(value)} bytes")
+            raise WireError(name, f"expected {count} float64 values ({8 * count} bytes), got {len(value)} bytes",
+                            topic)
         return np.frombuffer(value, dtype="<f8")
     if isinstance(value, list):
         if len(value) != count or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in value):
-            raise WireError(f"{where}: header field {name!r}: expected a list of {count} numbers")
+            raise WireError(name, f"expected a list of {count} numbers", topic)
         return np.asarray(value, dtype=np.float64)
-    raise WireError(f"{where}: header field {name!r}: expected {{start, step, count}}, float64 bytes or a list, "
-                    f"got {type(value).__name__}")
+    raise WireError(name, f"expected {{start, step, count}}, float64 bytes or a list, got {type(value).__name__}",
+                    topic)
 
 
 @functools.lru_cache(maxsize=64)
@@ -227,34 +249,33 @@ def _uniform_axis(start: float, step: float, count: int) -> np.ndarray:
 
 
 def _check_status(status: dict, topic: str | None = None) -> dict:
-    where = f"topic {topic!r}: status" if topic is not None else "status"
     if not all(isinstance(key, str) for key in status):
-        raise WireError(f"{where}: keys must be strings")
+        raise WireError("status", "keys must be strings", topic)
     node, state = status.get("node"), status.get("state")
     if not isinstance(node, str) or not node:
-        raise WireError(f"{where}: field 'node': expected a non-empty node name, got {node!r}")
+        raise WireError("status.node", f"expected a non-empty node name, got {node!r}", topic)
     if state not in STATUS_STATES:
-        raise WireError(f"{where}: field 'state': expected one of {', '.join(STATUS_STATES)}, got {state!r}")
+        raise WireError("status.state", f"expected one of {', '.join(STATUS_STATES)}, got {state!r}", topic)
     for name in _STATUS_COUNTERS:
         value = status.get(name, 0)
         if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 0:
-            raise WireError(f"{where}: field {name!r}: expected a non-negative int, got {value!r}")
+            raise WireError(f"status.{name}", f"expected a non-negative int, got {value!r}", topic)
     for name in _STATUS_NUMBERS:
         value = status.get(name, 0)
         if not isinstance(value, int | float | np.number) or isinstance(value, bool) or not math.isfinite(value):
-            raise WireError(f"{where}: field {name!r}: expected a finite number, got {value!r}")
+            raise WireError(f"status.{name}", f"expected a finite number, got {value!r}", topic)
     return status
 
 
-def _pack_header(header: dict) -> bytes:
+def _pack_header(header: dict, topic: str) -> bytes:
     try:
         packed = msgpack.packb(header, use_bin_type=True, default=_plain_value)
     except (TypeError, ValueError, OverflowError) as error:
-        raise WireError(f"header: cannot encode ({error}); meta, provenance and status must be JSON-like "
-                        f"(dict, list, str, int, float, bool, None, bytes)") from error
+        raise WireError("header", f"cannot encode ({error}); meta, provenance and status must be JSON-like "
+                                  f"(dict, list, str, int, float, bool, None, bytes)", topic) from error
     if len(packed) > MAX_HEADER_BYTES:
-        raise WireError(f"header: {len(packed)} bytes exceeds the {MAX_HEADER_BYTES}-byte limit; "
-                        f"keep large data out of meta/provenance")
+        raise WireError("header", f"{len(packed)} bytes exceeds the {MAX_HEADER_BYTES}-byte limit; "
+                                  f"keep large data out of meta/provenance", topic)
     return packed
 
 
@@ -265,61 +286,112 @@ def _plain_value(value: Any) -> Any:
     raise TypeError(f"cannot serialize {type(value).__name__}")
 
 
-def _unpack_header(part: Any) -> dict:
-    buffer = _as_buffer(part, "header part")
+# Why msgpack gave up, in words a publisher can act on (several of its exceptions carry no message).
+_MSGPACK_REASONS = {
+    "OutOfData": "truncated: the data ends inside a value",
+    "ExtraData": "bytes left over after the first value (the header must be exactly one map)",
+    "FormatError": "a byte that starts no msgpack value (e.g. 0xc1)",
+    "StackError": "nested too deeply",
+    "UnicodeDecodeError": "a str value is not valid UTF-8 (send bytes as bin, text as str)",
+}
+
+
+def _unpack_header(part: Any, topic: str) -> dict:
+    buffer = _as_buffer(part, "header", topic)
     if buffer.nbytes > MAX_HEADER_BYTES:
-        raise WireError(f"header: {buffer.nbytes} bytes exceeds the {MAX_HEADER_BYTES}-byte limit")
+        raise WireError("header", f"{buffer.nbytes} bytes exceeds the {MAX_HEADER_BYTES}-byte limit", topic)
+    if buffer.nbytes == 0:
+        raise WireError("header", "empty part; expected a msgpack map", topic)
     try:
-        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True)
+        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True,
+                                 object_hook=_reject_timestamps_in_map, list_hook=_reject_timestamps_in_list)
+    except _ExtensionFound as found:
+        hint = " (the timestamp extension: send ns since the epoch as an int)" if found.code == -1 else ""
+        raise WireError("header", f"msgpack extension type {found.code}{hint} is not part of the wire format",
+                        topic) from None
     except Exception as error:  # msgpack raises many types for corrupt input; all mean "not our header"
-        raise WireError(f"header: not valid msgpack ({type(error).__name__}: {error})") from error
+        name = type(error).__name__
+        reason = _MSGPACK_REASONS.get(name, "")
+        detail = str(error)
+        text = "; ".join(t for t in (reason, detail) if t) or name
+        raise WireError("header", f"not valid msgpack ({name}: {text})", topic) from error
+    if isinstance(header, msgpack.Timestamp):
+        raise WireError("header", "msgpack extension type -1 (timestamp) is not part of the wire format", topic)
     if not isinstance(header, dict):
-        raise WireError(f"header: expected a msgpack map, got {type(header).__name__}")
+        raise WireError("header", f"expected a msgpack map, got {type(header).__name__}", topic)
     version = header.get("v")
     if type(version) is not int or version != WIRE_VERSION:
-        raise WireError(f"header field 'v': wire version {version!r} is not supported (this reader speaks "
-                        f"version {WIRE_VERSION}); upgrade the older side")
+        raise WireError("v", f"wire version {version!r} is not supported (this reader speaks version "
+                             f"{WIRE_VERSION}); upgrade the older side", topic)
     return header
 
 
+class _ExtensionFound(Exception):
+    def __init__(self, code: int) -> None:
+        self.code = code
+
+
 def _reject_ext(code: int, data: bytes) -> Any:
-    raise WireError(f"header: msgpack extension type {code} is not part of the wire format")
+    raise _ExtensionFound(code)
+
+
+# msgpack decodes the timestamp extension (-1) itself, without calling ext_hook: catch it in its container.
+def _reject_timestamps_in_map(mapping: dict) -> dict:
+    for value in mapping.values():
+        if isinstance(value, msgpack.Timestamp):
+            raise _ExtensionFound(-1)
+    return mapping
+
+
+def _reject_timestamps_in_list(items: list) -> list:
+    for value in items:
+        if isinstance(value, msgpack.Timestamp):
+            raise _ExtensionFound(-1)
+    return items
 
 
 def _require_keys(topic: str, header: dict, required: set[str]) -> None:
     missing = sorted(required - set(header))
     if missing:
-        raise WireError(f"topic {topic!r}: header is missing field(s) {', '.join(missing)}")
+        raise WireError(missing[0], f"header is missing field(s) {', '.join(missing)}", topic)
 
 
 def _encode_topic(topic: str) -> bytes:
     if not isinstance(topic, str):
-        raise WireError(f"topic: expected str, got {type(topic).__name__}")
+        raise WireError("topic", f"expected str, got {type(topic).__name__}")
     encoded = topic.encode("utf-8")
     if len(encoded) > MAX_TOPIC_BYTES:
-        raise WireError(f"topic: {len(encoded)} bytes exceeds the {MAX_TOPIC_BYTES}-byte limit")
+        raise WireError("topic", f"{len(encoded)} bytes exceeds the {MAX_TOPIC_BYTES}-byte limit")
     return encoded
 
 
 def _decode_topic(part: Any) -> str:
-    buffer = _as_buffer(part, "topic part")
+    buffer = _as_buffer(part, "topic", None)
     if buffer.nbytes > MAX_TOPIC_BYTES:
-        raise WireError(f"topic: {buffer.nbytes} bytes exceeds the {MAX_TOPIC_BYTES}-byte limit")
+        raise WireError("topic", f"{buffer.nbytes} bytes exceeds the {MAX_TOPIC_BYTES}-byte limit")
     try:
         return bytes(buffer).decode("utf-8")
     except UnicodeDecodeError as error:
-        raise WireError(f"topic: not UTF-8 ({error})") from error
+        raise WireError("topic", f"not UTF-8 ({error})") from error
 
 
-def _as_buffer(part: Any, what: str) -> memoryview:
+def _topic_for_error(part: Any) -> str | None:
+    """The topic of a message being rejected for another reason, when it is readable."""
+    try:
+        return _decode_topic(part)
+    except WireError:
+        return None
+
+
+def _as_buffer(part: Any, what: str, topic: str | None) -> memoryview:
     """A flat byte view of a message part: a zmq.Frame (its .buffer), bytes, bytearray or memoryview."""
     source = getattr(part, "buffer", part)  # zmq.Frame exposes the message memory as .buffer
     try:
         view = memoryview(source)
     except TypeError as error:
-        raise WireError(f"{what}: expected bytes or a zmq.Frame, got {type(part).__name__}") from error
+        raise WireError(what, f"expected bytes or a zmq.Frame, got {type(part).__name__}", topic) from error
     if view.ndim != 1 or view.itemsize != 1:
         if not view.c_contiguous:
-            raise WireError(f"{what}: a message part must be one contiguous buffer")
+            raise WireError(what, "a message part must be one contiguous buffer", topic)
         view = view.cast("B")
     return view

@@ -129,3 +129,15 @@ def test_invalid_requests_raise_frame_errors():
         geo.polar_to_fan(frame, 1)
     with pytest.raises(FrameError, match="layout"):
         geo.fan_to_polar(np.zeros((10, 10), np.uint8), geo.fan_layout(frame, 50), RANGES, BEARINGS)
+
+
+@pytest.mark.parametrize("dtype", [">u2", ">f4", ">f8"])
+def test_big_endian_frames_resample_and_fan_like_native_ones(dtype):
+    rng = np.random.default_rng(3)
+    native = np.dtype(dtype).newbyteorder("=")
+    values = (rng.random((120, 64)) * (1000 if native.kind == "u" else 1)).astype(native)
+    little, big = frame_of(values), frame_of(values.astype(dtype))
+    # Shrinking takes the anti-aliasing path (a blur over the samples), which must see values, not raw bytes.
+    np.testing.assert_array_equal(geo.resample_to_grid(big, 30, 16).intensity,
+                                  geo.resample_to_grid(little, 30, 16).intensity)
+    np.testing.assert_array_equal(geo.polar_to_fan(big, 64), geo.polar_to_fan(little, 64))

@@ -79,8 +79,9 @@ def test_seeded_translation_is_reproducible_and_unseeded_is_not(translator):
 
 
 def test_translator_params_are_validated():
-    from nodes.translator import TranslatorParams
+    from sonar_realism.runtime.graph import resolve_node_type
 
+    TranslatorParams = resolve_node_type("translator").PARAMS  # noqa: N806 - a class
     with pytest.raises(ConfigError, match="n"):
         from_dict(TranslatorParams, {"n": 0})
     with pytest.raises(ConfigError, match="unknown key"):
@@ -166,3 +167,14 @@ def test_recording_is_lossless_and_draws_a_contact_sheet(tmp_path, name):
     assert back[1].meta["provenance"]["input_seq"] == 1
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet is not None and sheet.shape[1] >= 4 * 64 and sheet.std() > 0  # 4 tiles (every 2nd frame)
+
+
+def test_a_single_sample_axis_is_translated_and_several_samples_are_refused(translator):
+    from sonar_realism.errors import FrameError
+
+    model, _ = translator
+    stage = TranslationStage(model, n=2, seed=1)
+    plain, with_axis = frame(3), frame(3, samples=1)
+    np.testing.assert_array_equal(stage([with_axis])[0].intensity, stage([plain])[0].intensity)
+    with pytest.raises(FrameError, match="samples"):
+        stage([frame(4, samples=2)])

@@ -368,3 +368,29 @@ def _write(data: bytes, name: str, folder: Path) -> Path:
     path = folder / name
     path.write_bytes(data)
     return path
+
+
+@pytest.mark.parametrize("cut", [1, 77, 2000])
+def test_read_frames_recognises_a_raw_capture_that_starts_mid_stream(tmp_path, cut):
+    from sonar_realism.io import read_frames
+    from sonar_realism.io import sniff as sniff_file
+
+    pings = [encode_ping(ping_frame(n_ranges=64, n_beams=256, seq=10 + i, seed=i)) for i in range(3)]
+    path = _write(b"".join(pings)[cut:], "joined_late.raw", tmp_path)  # the first message is cut short
+    assert sniff(path.read_bytes()[:64]) is None  # not a message boundary at byte 0 ...
+    assert sniff_file(path) == "oculus_raw"       # ... but the file sniffer finds the ping headers further in
+    report = ReadReport()
+    assert [f.seq for f in read_frames(path, report)] == [11, 12]
+    assert report.skipped["garbage bytes"] == len(pings[0]) - cut
+
+
+def test_the_mid_stream_search_is_bounded_and_refuses_other_content(tmp_path):
+    from sonar_realism.io import read_frames
+
+    ping = encode_ping(ping_frame(seq=3))
+    far = _write(bytes(2 << 20) + ping, "far.raw", tmp_path)  # a ping header only after 2 MiB of zeros
+    with pytest.raises(FormatError, match="unrecognised content"):
+        list(read_frames(far))
+    text = _write(b"SO what? " * 1000, "notes.txt", tmp_path)
+    with pytest.raises(FormatError, match="unrecognised content"):
+        list(read_frames(text))

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import zmq
 
+from sonar_realism.errors import FrameError
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.runtime import EndOfStream, InputPolicy, InputQueue, InputWiring, Node, OutputWiring, SeqTracker
 from sonar_realism.runtime.node import end_of_stream_message
@@ -140,10 +141,17 @@ def test_lossless_never_drops_and_reports_when_full():
 
 def test_stale_frames_are_dropped_when_taken():
     queue = InputQueue(InputPolicy("fifo", capacity=4, max_age_s=1.0))
-    queue.put(tiny_frame(0, stamp_ns=time.time_ns() - 5_000_000_000))
+    queue.put(tiny_frame(0), born_ns=time.time_ns() - 5_000_000_000)  # sent 5 s ago
     queue.put(tiny_frame(1))
     assert [f.seq for f in queue.take(4)] == [1]
-    assert queue.stale == 1
+    assert queue.stale == 1 and queue.last_taken_seq == 1
+
+
+def test_age_counts_from_sending_not_from_a_simulated_acquisition_stamp():
+    # A simulator stamping sim time (here: 1 s after the epoch) must not lose every frame to max_age_s.
+    queue = InputQueue(InputPolicy("latest", max_age_s=0.5))
+    queue.put(tiny_frame(0, stamp_ns=1_000_000_000), born_ns=time.time_ns())
+    assert [f.seq for f in queue.take(1)] == [0] and queue.stale == 0
 
 
 def test_seq_tracker_counts_gaps_and_out_of_order_frames():
@@ -230,7 +238,8 @@ def test_status_heartbeat_reports_counters_and_the_final_state(context):
     run_all(src, sink)
     reports = []
     while sub.poll(200):
-        reports.append(decode_message(sub.recv_multipart()))
+        message = decode_message(sub.recv_multipart())
+        reports.append((message.topic, message.kind, message.body))
     sub.close(linger=0)
     states = [body["state"] for topic, kind, body in reports]
     assert all(topic == "sink/status" and kind == "status" for topic, kind, _ in reports)
@@ -267,3 +276,58 @@ def test_stop_while_blocked_on_a_full_lossless_consumer_never_hangs(context):
     pull.close(linger=0)
     assert not thread.is_alive() and src.state == "stopped"
     assert src.status()["frames_out"] < 10_000
+
+
+class PickySink(CollectingSink):
+    """Cannot handle frames whose seq is a multiple of 5 (as a model cannot handle some shapes)."""
+
+    BATCH_SIZE = 4
+
+    def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        if any(f.seq % 5 == 0 for f in frames):
+            raise FrameError("intensity: this node cannot take this frame")
+        self.frames.extend(frames)
+
+
+def test_frames_a_node_cannot_process_are_counted_as_malformed_and_the_rest_of_the_batch_goes_on(context, caplog):
+    src, sink = pair(context, InputPolicy("lossless"), SourceParams(count=23))
+    sink = PickySink("sink", SinkParams(), sink.wiring, context)
+    run_all(src, sink)
+    assert [f.seq for f in sink.frames] == [s for s in range(23) if s % 5]
+    assert sink.status()["malformed"] == 5 and sink.state == "stopped"
+    assert "topic 'src/frames'" in caplog.text and "frame seq 10 cannot be processed" in caplog.text
+
+
+class BrokenSink(CollectingSink):
+    def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        raise RuntimeError("a fault of the node, not of the frame")
+
+
+def test_a_fault_of_the_node_itself_still_ends_it(context):
+    src, sink = pair(context, InputPolicy("lossless"), SourceParams(count=3))
+    sink = BrokenSink("sink", SinkParams(), sink.wiring, context)
+    thread = threading.Thread(target=src.run, daemon=True)
+    thread.start()
+    with pytest.raises(RuntimeError, match="fault of the node"):
+        sink.run()
+    src.request_stop()
+    thread.join(JOIN_TIMEOUT_S)
+    assert sink.state == "error" and not thread.is_alive()
+
+
+def test_frames_on_a_topic_nobody_takes_are_counted_not_lost_silently(context, caplog):
+    endpoint = f"inproc://rt{next(_ids)}/external"
+    publisher = context.socket(zmq.XPUB)
+    publisher.bind(endpoint)
+    sink = CollectingSink("sink", SinkParams(), Wiring(
+        inputs={"frames": InputWiring(endpoint, "sonar/sim", InputPolicy("fifo", capacity=64))}), context)
+    thread = threading.Thread(target=sink.run, daemon=True)
+    thread.start()
+    assert publisher.poll(JOIN_TIMEOUT_S * 1000) and publisher.recv()[0] == 1  # the sink has subscribed
+    for seq, topic in enumerate(["sonar/sim", "sonar/sim2", "sim", "sonar/sim"]):
+        publisher.send_multipart(encode_frame(tiny_frame(seq), topic))
+    publisher.send_multipart(end_of_stream_message("sonar/sim", "sim", "finished"))
+    thread.join(JOIN_TIMEOUT_S)
+    publisher.close(linger=0)
+    assert [f.seq for f in sink.frames] == [0, 3]
+    assert sink.status()["other_topic"] == 2 and "frames on topic 'sonar/sim2' are ignored" in caplog.text

@@ -69,7 +69,10 @@ def test_big_endian_frames_keep_their_values(dtype):
     parts = encode_frame(swapped, "t")
     assert msgpack.unpackb(parts[1])["dtype"] == dtype
     _, decoded = decode_frame(to_bytes(parts))
-    np.testing.assert_array_equal(decoded.intensity.astype(frame.intensity.dtype), frame.intensity)
+    # Byte order is normalised once, in the decoder: consumers only ever see native samples.
+    assert decoded.intensity.dtype == frame.intensity.dtype and decoded.intensity.dtype.isnative
+    np.testing.assert_array_equal(decoded.intensity, frame.intensity)
+    assert not decoded.intensity.flags.writeable
 
 
 def test_uniform_ranges_travel_compactly_and_explicit_bearings_exactly():
@@ -143,17 +146,18 @@ def test_status_round_trip_over_a_socket(pair):
               "dropped": 1, "seq_gaps": 0, "malformed": 2, "inference_ms": 12.5, "uptime_s": 4.0,
               "endpoint": "tcp://127.0.0.1:5556"}
     sender.send_multipart(encode_status("translator/status", status))
-    topic, kind, decoded = decode_message(receiver.recv_multipart(copy=False))
-    assert (topic, kind, decoded) == ("translator/status", STATUS_TYPE, status)
+    message = decode_message(receiver.recv_multipart(copy=False))
+    assert (message.topic, message.kind, message.body) == ("translator/status", STATUS_TYPE, status)
+    assert message.sent_ns > 0
     with pytest.raises(WireError, match="expected a frame message"):
         decode_frame(encode_status("translator/status", status))
 
 
 def test_decode_message_reports_frames_as_frames():
     frame = make_frame()
-    topic, kind, decoded = decode_message(to_bytes(encode_frame(frame, "a/b")))
-    assert (topic, kind) == ("a/b", FRAME_TYPE)
-    assert_same_frame(decoded, frame)
+    message = decode_message(to_bytes(encode_frame(frame, "a/b")))
+    assert (message.topic, message.kind) == ("a/b", FRAME_TYPE)
+    assert_same_frame(message.body, frame)
 
 
 @pytest.mark.parametrize("status, field", [
@@ -194,16 +198,16 @@ DATA = FRAME.intensity.tobytes()
     ([b"t", header_of(FRAME), DATA, DATA], "got 4"),
     ([b"t"], "got 1"),
     ([b"\xff\xfe", header_of(FRAME), DATA], "topic: not UTF-8"),
-    ([b"t", header_of(FRAME, type="image"), DATA], "field 'type'"),
-    ([b"t", header_of(FRAME, shape=[16, 24, 0]), DATA], "field 'shape'"),
-    ([b"t", header_of(FRAME, shape=[384]), DATA], "field 'shape'"),
-    ([b"t", header_of(FRAME, layout="beam_range"), DATA], "field 'layout'"),
+    ([b"t", header_of(FRAME, type="image"), DATA], "type: "),
+    ([b"t", header_of(FRAME, shape=[16, 24, 0]), DATA], "shape: "),
+    ([b"t", header_of(FRAME, shape=[384]), DATA], "shape: "),
+    ([b"t", header_of(FRAME, layout="beam_range"), DATA], "layout: "),
     ([b"t", header_of(FRAME, seq=None), DATA], "missing field.*seq"),
     ([b"t", header_of(FRAME, seq=-1), DATA], "seq"),
     ([b"t", header_of(FRAME, stamp_ns="now"), DATA], "stamp_ns"),
     ([b"t", header_of(FRAME, frame_id=3), DATA], "frame_id"),
-    ([b"t", header_of(FRAME, meta=[1]), DATA], "field 'meta'"),
-    ([b"t", header_of(FRAME, provenance="me"), DATA], "field 'provenance'"),
+    ([b"t", header_of(FRAME, meta=[1]), DATA], "meta: "),
+    ([b"t", header_of(FRAME, provenance="me"), DATA], "provenance: "),
     ([b"t", header_of(FRAME, ranges_m={"start": 0, "step": 1, "count": 23}), DATA], "count 23"),
     ([b"t", header_of(FRAME, ranges_m={"start": 0, "step": -1, "count": 24}), DATA], "strictly increasing"),
     ([b"t", header_of(FRAME, azimuths_rad=b"\0" * 8), DATA], "expected 16 float64"),
@@ -217,8 +221,46 @@ DATA = FRAME.intensity.tobytes()
     ([b"t", "a str, not bytes", DATA], "expected bytes"),
 ])
 def test_malformed_messages_raise_wire_error(parts, message):
-    with pytest.raises(WireError, match=message):
+    with pytest.raises(WireError, match=message) as caught:
         decode_message(parts)
+    assert caught.value.field and str(caught.value).startswith(caught.value.field if caught.value.topic is None
+                                                               else f"topic {caught.value.topic!r}: ")
+
+
+@pytest.mark.parametrize("meta", [
+    {"when": msgpack.Timestamp(1_700_000_000, 5)},
+    {"nested": [1, {"deeper": msgpack.Timestamp(0, 0)}]},
+    {"ext": msgpack.ExtType(3, b"xyz")},
+], ids=["timestamp", "nested-timestamp", "ext-3"])
+def test_extension_types_are_rejected_wherever_they_sit(meta):
+    with pytest.raises(WireError, match="extension type") as caught:
+        decode_message([b"t", header_of(FRAME, meta=meta), DATA])
+    assert (caught.value.topic, caught.value.field) == ("t", "header")
+
+
+@pytest.mark.parametrize("header, reason", [
+    (b"", "empty part"),
+    (b"\xc1", "starts no msgpack value"),
+    (b"\x81\xa1v", "incomplete input"),
+    (b"\x81\x01\x02", "not allowed for map key"),
+])
+def test_garbage_headers_give_a_reason_a_publisher_can_act_on(header, reason):
+    with pytest.raises(WireError, match=reason) as caught:
+        decode_message([b"sonar/sim", header, DATA])
+    assert (caught.value.topic, caught.value.field) == ("sonar/sim", "header")
+
+
+@pytest.mark.parametrize("field, value", [("stamp_ns", 2**64 - 1), ("seq", 2**63)])
+def test_64_bit_unsigned_counters_are_accepted(field, value):
+    _, frame = decode_frame([b"t", header_of(FRAME, **{field: value}), DATA])
+    assert getattr(frame, field) == value
+
+
+@pytest.mark.parametrize("field, value", [("stamp_ns", -1), ("sent_ns", -5), ("sent_ns", "now"), ("seq", 1.0)])
+def test_counters_outside_uint64_are_rejected_with_their_field(field, value):
+    with pytest.raises(WireError) as caught:
+        decode_message([b"t", header_of(FRAME, **{field: value}), DATA])
+    assert caught.value.field == field
 
 
 def test_nan_in_a_float_frame_is_rejected():
@@ -270,12 +312,13 @@ def test_fuzzed_headers_raise_only_wire_error(changes, drop, data, two_parts):
         return  # ints beyond 64 bits cannot even be packed, so no publisher can send them
     parts = [b"t", packed] if two_parts else [b"t", packed, data]
     try:
-        topic, kind, body = decode_message(parts)
-    except WireError:
+        message = decode_message(parts)
+    except WireError as error:
+        assert error.topic == "t" and error.field
         return
-    assert kind in (FRAME_TYPE, STATUS_TYPE)
-    if kind == FRAME_TYPE:
-        assert body.intensity.nbytes == len(data)
+    assert message.kind in (FRAME_TYPE, STATUS_TYPE)
+    if message.kind == FRAME_TYPE:
+        assert message.body.intensity.nbytes == len(data)
 
 
 @settings(max_examples=300, deadline=None)

@@ -43,7 +43,9 @@ def sniff(path: str | Path) -> str | None:
         return "tiff"
     if head.startswith(npz.ZIP_MAGIC):
         return "npz"
-    return rosbag.sniff(path, head) or oculus.sniff(head)
+    # A raw Oculus capture need not start on a message boundary: look for a ping header further in.
+    return (rosbag.sniff(path, head) or oculus.sniff(head)
+            or ("oculus_raw" if oculus.starts_mid_capture(path) else None))
 
 
 def read_frames(path: str | Path, report: ReadReport | None = None, topic: str | None = None,

@@ -380,6 +380,13 @@ def read_oculus(path: str | os.PathLike[str], report: ReadReport | None = None) 
                               f"(44 33 22 11) nor a raw Oculus message stream (53 4f)")
 
 
+def starts_mid_capture(path: str | os.PathLike[str]) -> bool:
+    """Whether the file is a raw capture that began mid-message (a capture started while the sonar was
+    streaming): a valid ping header follows within the first MiB. Bounded: reads at most ~1 MiB."""
+    with open(path, "rb", buffering=0) as handle:
+        return _starts_mid_capture(_PositionalFile(handle, str(path)))
+
+
 def _starts_mid_capture(source: _PositionalFile) -> bool:
     """A raw capture that began mid-message: a valid ping header follows within the first MiB of garbage."""
     candidate = _message_start(source, 1, _FIND_CHUNK)

@@ -81,7 +81,7 @@ class InputQueue:
     def __init__(self, policy: InputPolicy) -> None:
         policy.validate()
         self.policy = policy
-        self._items: deque[SonarImage | EndOfStream] = deque()
+        self._items: deque[tuple[SonarImage, int] | EndOfStream] = deque()  # (frame, born_ns) or end of stream
         self._frames = 0
         self._cond = threading.Condition()
         self.received = 0
@@ -89,6 +89,7 @@ class InputQueue:
         self.stale = 0
         self.seq = SeqTracker()
         self.ended = False
+        self.last_taken_seq: int | None = None  # newest frame taken out (handed on or dropped as stale)
 
     def __len__(self) -> int:
         with self._cond:
@@ -99,7 +100,9 @@ class InputQueue:
         with self._cond:
             return self.policy.policy != "lossless" or self._frames < self.policy.capacity
 
-    def put(self, item: SonarImage | EndOfStream) -> None:
+    def put(self, item: SonarImage | EndOfStream, born_ns: int | None = None) -> None:
+        """Queue a frame (or end of stream). `born_ns` is when the frame was sent (wall clock, the header's
+        `sent_ns`); without it, now. `max_age_s` counts from there, never from the acquisition stamp."""
         with self._cond:
             if isinstance(item, EndOfStream):
                 if not self.ended:
@@ -114,7 +117,7 @@ class InputQueue:
             if self.policy.policy != "lossless":
                 while self._frames >= self.policy.effective_capacity:
                     self._drop_oldest_frame()
-            self._items.append(item)
+            self._items.append((item, time.time_ns() if born_ns is None else born_ns))
             self._frames += 1
             self._cond.notify_all()
 
@@ -136,10 +139,12 @@ class InputQueue:
                     out.append(item)
                     break
                 self._frames -= 1
-                if self._is_stale(item, now_ns):
+                frame, born_ns = item
+                self.last_taken_seq = frame.seq
+                if self._is_stale(born_ns, now_ns):
                     self.stale += 1
                     continue
-                out.append(item)
+                out.append(frame)
             self._cond.notify_all()
             return out
 
@@ -158,6 +163,6 @@ class InputQueue:
                 self.dropped += 1
                 return
 
-    def _is_stale(self, frame: SonarImage, now_ns: int) -> bool:
+    def _is_stale(self, born_ns: int, now_ns: int) -> bool:
         max_age_s = self.policy.max_age_s
-        return max_age_s > 0 and frame.stamp_ns > 0 and (now_ns - frame.stamp_ns) > max_age_s * 1e9
+        return max_age_s > 0 and (now_ns - born_ns) > max_age_s * 1e9

@@ -9,9 +9,10 @@ host = "127.0.0.1"           # tcp binds here; loopback unless you mean to serve
 out = "out/demo"             # run folder; "{out}" in any string parameter becomes this folder
 
 [nodes.sim]
-type = "sim_source"          # module nodes.sim_source, or "package.module", or "module:Class"
+type = "sim_source"          # module sonar_realism_nodes.sim_source, or "package.module", or "module:Class"
 params = { count = 8 }
 bind = { frames = "tcp://0.0.0.0:5601" }   # optional fixed endpoint of an output (other hosts connect)
+                             # bind.status: a fixed endpoint for the node's status messages
 restart = "on-failure"       # or "never" (default); at most max_restarts times
 
 [nodes.translator]
@@ -26,12 +27,15 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.util
 import itertools
 import os
 import re
 import socket
+import sys
 import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 from sonar_realism.config import from_dict, to_dict
@@ -43,6 +47,8 @@ from sonar_realism.runtime.wiring import InputWiring, OutputWiring, Wiring
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*$")
 _ENDPOINT = re.compile(r"^(tcp|ipc|inproc)://")
 _run_counter = itertools.count()
+NODES_PACKAGE = "sonar_realism_nodes"  # the repository's nodes/ folder (setup.py)
+STATUS_BIND = "status"  # `bind.status` fixes where a node publishes its status messages
 
 
 @dataclass(frozen=True)
@@ -125,10 +131,12 @@ class LaunchGraph:
 
 
 def resolve_node_type(type_name: str) -> type[Node]:
-    """`translator` -> nodes.translator.NODE; `pkg.mod` -> pkg.mod.NODE; `pkg.mod:Class` -> that class."""
+    """`translator` -> sonar_realism_nodes.translator.NODE; `pkg.mod` -> pkg.mod.NODE; `pkg.mod:Class` -> that
+    class."""
     module_name, _, attribute = type_name.partition(":")
     if "." not in module_name and not attribute:
-        module_name = f"nodes.{module_name}"
+        _load_builtin_nodes()
+        module_name = f"{NODES_PACKAGE}.{module_name}"
     try:
         module = importlib.import_module(module_name)
     except ImportError as error:
@@ -138,6 +146,22 @@ def resolve_node_type(type_name: str) -> type[Node]:
         raise ConfigError(f"unknown node type {type_name!r}: {module_name} has no Node subclass "
                           f"{attribute or 'NODE'}")
     return node_class
+
+
+def _load_builtin_nodes() -> None:
+    """The built-in nodes are the repository's `nodes/` folder, installed as `sonar_realism_nodes`. They are taken
+    from the same checkout as this library when there is one (a source tree, an editable install made before the
+    package had that name), else from the installed package."""
+    if NODES_PACKAGE in sys.modules:
+        return
+    folder = Path(__file__).resolve().parents[2] / "nodes"
+    if not (folder / "__init__.py").is_file():
+        return  # a regular install: sonar_realism_nodes is an ordinary package
+    spec = importlib.util.spec_from_file_location(NODES_PACKAGE, folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    sys.modules[NODES_PACKAGE] = module
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
 
 
 def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
@@ -201,7 +225,8 @@ def build_graph(data: dict[str, Any], out_dir: str | None = None) -> LaunchGraph
             inputs={input_name: _input_wiring(name, input_name, spec_in, outputs, edges)
                     for input_name, spec_in in inputs[name].items()},
             outputs={output_name: out for (node, output_name), out in outputs.items() if node == name},
-            status_endpoint=endpoints.make(name, "status", reconnect=spec.restart != "never"),
+            status_endpoint=spec.bind.get(STATUS_BIND) or endpoints.make(name, "status",
+                                                                         reconnect=spec.restart != "never"),
             status_subscribers=1,
             heartbeat_s=settings.heartbeat_s,
             ready_timeout_s=settings.ready_timeout_s,
@@ -298,41 +323,46 @@ def _free_port(host: str) -> int:
 
 def _assign_outputs(specs: dict[str, NodeSpec], classes: dict[str, type[Node]],
                     inputs: dict[str, dict[str, InputSpec]], endpoints: _Endpoints, settings: LaunchSettings,
-                    ) -> tuple[dict[tuple[str, str], OutputWiring], dict[tuple[str, str], str]]:
-    """Output wirings by (node, output), and the PUSH endpoint of each lossless edge by (consumer, input)."""
+                    ) -> tuple[dict[tuple[str, str], OutputWiring], dict[tuple[str, str], tuple[str, str]]]:
+    """Output wirings by (node, output), and the (PUSH, ack) endpoints of each lossless edge by (consumer, input)."""
     outputs = {}
-    edges: dict[tuple[str, str], str] = {}
+    edges: dict[tuple[str, str], tuple[str, str]] = {}
     for name, node_class in classes.items():
-        unknown = sorted(set(specs[name].bind) - set(node_class.OUTPUTS))
+        unknown = sorted(set(specs[name].bind) - set(node_class.OUTPUTS) - {STATUS_BIND})
         if unknown:
-            raise ConfigError(f"nodes.{name}.bind: {', '.join(unknown)} not an output of {specs[name].type}")
+            raise ConfigError(f"nodes.{name}.bind: {', '.join(unknown)} not an output of {specs[name].type} "
+                              f"(nor {STATUS_BIND!r}, the node's status endpoint)")
         reconnect = specs[name].restart != "never"
         for output in node_class.OUTPUTS:
             consumers = [(consumer, input_name, spec) for consumer, ins in inputs.items()
                          for input_name, spec in ins.items() if spec.source == f"{name}.{output}"]
-            pushes = []
+            pushes, acks = [], []
             for consumer, input_name, spec in consumers:
                 if spec.policy == "lossless":
-                    edges[(consumer, input_name)] = endpoints.make(name, output, "to", consumer, input_name,
-                                                                   reconnect=reconnect)
-                    pushes.append(edges[(consumer, input_name)])
+                    push = endpoints.make(name, output, "to", consumer, input_name, reconnect=reconnect)
+                    ack = endpoints.make(name, output, "ack", consumer, input_name, reconnect=reconnect)
+                    edges[(consumer, input_name)] = (push, ack)
+                    pushes.append(push)
+                    acks.append(ack)
             subscribers = sum(1 for _, _, spec in consumers if spec.policy != "lossless")
             outputs[(name, output)] = OutputWiring(
                 topic=f"{name}/{output}",
                 pub_endpoint=specs[name].bind.get(output) or endpoints.make(name, output, reconnect=reconnect),
-                expected_subscribers=subscribers, push_endpoints=tuple(pushes), hwm=settings.hwm)
+                expected_subscribers=subscribers, push_endpoints=tuple(pushes), ack_endpoints=tuple(acks),
+                hwm=settings.hwm)
     return outputs, edges
 
 
 def _input_wiring(name: str, input_name: str, spec: InputSpec, outputs: dict[tuple[str, str], OutputWiring],
-                  edges: dict[tuple[str, str], str]) -> InputWiring:
+                  edges: dict[tuple[str, str], tuple[str, str]]) -> InputWiring:
     policy = InputPolicy(spec.policy, spec.capacity, spec.max_age_s)  # type: ignore[arg-type]
     if spec.external:
         return InputWiring(spec.source, spec.topic, policy)
     source_node, _, output = spec.source.partition(".")
     out = outputs[(source_node, output)]
     if spec.policy == "lossless":
-        return InputWiring(edges[(name, input_name)], out.topic, policy, in_graph=True)
+        push, ack = edges[(name, input_name)]
+        return InputWiring(push, out.topic, policy, in_graph=True, ack_endpoint=ack)
     # A producer bound to every interface is reached over loopback from this host.
     connect = out.pub_endpoint.replace("//0.0.0.0:", "//127.0.0.1:").replace("//*:", "//127.0.0.1:")
     return InputWiring(connect, out.topic, policy, in_graph=True)

@@ -80,10 +80,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     code, summary = launch(graph)
     for name, item in summary.items():
-        status = item["status"] or {}
-        print(f"{name:>14}: exit {item['exit_code']}, restarts {item['restarts']}, in {status.get('frames_in', 0)}, "
-              f"out {status.get('frames_out', 0)}, dropped {status.get('dropped', 0)}, "
-              f"seq gaps {status.get('seq_gaps', 0)}, malformed {status.get('malformed', 0)}, "
-              f"inference {status.get('inference_ms', 0.0):.1f} ms/frame")
+        totals, status = item["totals"], item["status"] or {}
+        print(f"{name:>14}: exit {item['exit_code']}, restarts {item['restarts']}, in {totals['frames_in']}, "
+              f"out {totals['frames_out']}, dropped {totals['dropped']}, stale {totals['stale']}, "
+              f"seq gaps {totals['seq_gaps']}, malformed {totals['malformed']}, other topic {totals['other_topic']}, "
+              f"resent {totals['resent']}, inference {status.get('inference_ms', 0.0):.1f} ms/frame")
     print(f"run folder: {graph.settings.out}")
     return code

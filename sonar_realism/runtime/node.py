@@ -16,6 +16,13 @@ The loop never blocks for more than `_TICK_S`; `request_stop()` (signal handlers
 
 End of stream on the wire: a status message on the DATA topic with `end_of_stream: true`. On XPUB
 outputs it is repeated until every subscriber has hung up (or `eos_linger_s`), because PUB may drop.
+On lossless edges with an acknowledgement channel, frames survive a consumer crash (runtime/lossless.py):
+end of stream goes out only once every frame has been acknowledged.
+
+A frame the node cannot handle (process() raises FrameError, WireError or another ValueError for it) is
+counted as `malformed` and logged with its topic and the reason, like a message that breaks the wire
+format; the node goes on. Any other exception is a fault of the node and ends it (the launcher may
+restart it).
 """
 
 from __future__ import annotations
@@ -24,7 +31,8 @@ import logging
 import os
 import threading
 import time
-from dataclasses import dataclass
+import uuid
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import zmq
@@ -32,6 +40,14 @@ import zmq
 from sonar_realism.errors import ConfigError, SonarRealismError, WireError
 from sonar_realism.frames import SonarImage
 from sonar_realism.runtime.delivery import EndOfStream, InputQueue
+from sonar_realism.runtime.lossless import (
+    AckTracker,
+    InputSync,
+    ResendBuffer,
+    ack_message,
+    hello_message,
+    parse_control,
+)
 from sonar_realism.runtime.wiring import InputWiring, OutputWiring, Wiring
 from sonar_realism.wire import FRAME_TYPE, STATUS_TYPE, decode_message, encode_frame, encode_status
 
@@ -39,18 +55,49 @@ log = logging.getLogger(__name__)
 
 _TICK_S = 0.05  # longest any wait inside the loop may last: bounds the reaction time to a stop request
 _EOS_RESEND_S = 0.1
+_ROOM_POLL_S = 0.005  # how soon the receive thread looks again at a full queue while it also watches acks
+_STATUS_SOON_S = 0.1  # after a rejection, the next status goes out this soon (counters survive a crash)
+_WARN_FIRST = 20  # rejections logged one by one per input; after that every _WARN_EVERY-th
+_WARN_EVERY = 1000
+# What process() may raise about one frame (its content), as opposed to a fault of the node itself.
+_FRAME_FAULTS = (SonarRealismError, ValueError)
 
 
 def end_of_stream_message(topic: str, node: str, reason: str) -> list:
     return encode_status(topic, {"node": node, "state": "stopped", "end_of_stream": True, "reason": reason})
 
 
+def resync_message(topic: str, node: str, session: str) -> list:
+    return encode_status(topic, {"node": node, "state": "running", "resync": session})
+
+
+@dataclass
+class _Edge:
+    """One lossless consumer of an output: its PUSH, and (in a launch) its acknowledgements."""
+
+    push: zmq.Socket
+    acks: zmq.Socket | None = None
+    buffer: ResendBuffer | None = None
+
+
 @dataclass
 class _Output:
     wiring: OutputWiring
     xpub: zmq.Socket
-    pushes: list[zmq.Socket]
+    edges: list[_Edge]
     subscribers: int = 0
+
+
+@dataclass
+class _Input:
+    """Receive-side state of one input besides its queue: the acknowledgement channel of a lossless edge."""
+
+    wiring: InputWiring
+    ack_socket: zmq.Socket | None = None   # owned by the main thread
+    sync: InputSync | None = None          # used by the receive thread
+    tracker: AckTracker = field(default_factory=AckTracker)
+    rejected: int = 0                      # messages on this input counted as malformed
+    other_topics: set[str] = field(default_factory=set)
 
 
 class NodeStopped(SonarRealismError):
@@ -75,14 +122,21 @@ class Node:
         self.batch_size = self.BATCH_SIZE
         self.context = context or zmq.Context.instance()
         self.queues = {input_name: InputQueue(w.policy) for input_name, w in wiring.inputs.items()}
+        self.session = uuid.uuid4().hex[:16]  # this instance; a restarted node is a new session
+        self._inputs = {input_name: _Input(w) for input_name, w in wiring.inputs.items()}
         self.state = "starting"
         self.frames_out = 0
         self.malformed = 0
+        self.other_topic = 0
+        self._status_due = False
+        self._last_status = 0.0
+        self._count_lock = threading.Lock()
         self._inference_ms_total = 0.0
         self._inference_frames = 0
         self._status_seq = 0
         self._started = time.monotonic()
         self._stop = threading.Event()
+        self._closing = threading.Event()  # ends the receive thread (shutdown), later than _stop
         self._wake = threading.Event()
         self._producers_ended = threading.Event()
         self._outputs: dict[str, _Output] = {}
@@ -112,8 +166,17 @@ class Node:
         raises NodeStopped if a stop request arrives while waiting."""
         out = self._outputs[output]
         parts = encode_frame(frame, out.wiring.topic, provenance)  # encode fully first: no half-sent message
-        for push in out.pushes:
-            self._send_waiting(push, parts, stop_aware=True)
+        for edge in out.edges:
+            if edge.buffer is not None:
+                self._settle_outputs()
+                while edge.buffer.full:  # wait for acknowledgements: bounded memory, backpressure
+                    if self.stop_requested:
+                        raise NodeStopped(f"node {self.name!r}: stopped while waiting for acknowledgements")
+                    self._wait_for_news(_TICK_S)
+                    self._settle_outputs()
+            self._send_waiting(edge.push, parts, stop_aware=True)
+            if edge.buffer is not None:
+                edge.buffer.record(frame.seq, parts)
         out.xpub.send_multipart(parts, copy=False, flags=zmq.NOBLOCK)
         self.frames_out += 1
 
@@ -140,9 +203,12 @@ class Node:
     # ---- status ----------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         queues = self.queues.values()
+        buffers = self._buffers()
+        syncs = [i.sync for i in self._inputs.values() if i.sync is not None]
         return {
             "node": self.name,
             "state": self.state,
+            "session": self.session,
             "seq": self._status_seq,
             "stamp_ns": time.time_ns(),
             "uptime_s": time.monotonic() - self._started,
@@ -153,6 +219,10 @@ class Node:
             "seq_gaps": sum(q.seq.gaps for q in queues),
             "out_of_order": sum(q.seq.out_of_order for q in queues),
             "malformed": self.malformed,
+            "other_topic": self.other_topic,
+            "duplicates": sum(s.duplicates for s in syncs),
+            "resent": sum(b.resent for b in buffers),
+            "unacked": sum(len(b) for b in buffers),
             "inference_ms": self._inference_ms_total / self._inference_frames if self._inference_frames else 0.0,
             "queued": {name: len(q) for name, q in self.queues.items()},
         }
@@ -160,6 +230,8 @@ class Node:
     def _send_status(self) -> None:
         if self._status_socket is None:
             return
+        self._status_due = False
+        self._last_status = time.monotonic()
         self._status_seq += 1
         try:
             self._status_socket.send_multipart(encode_status(f"{self.name}/status", self.status()),
@@ -198,13 +270,19 @@ class Node:
             return
         self._closed = True
         self._stop.set()
+        self._closing.set()
         if self._pump is not None:
             self._pump.join(timeout=5.0)
         self._send_status()
         for out in self._outputs.values():
             out.xpub.close(linger=0)
-            for push in out.pushes:
-                push.close(linger=int(self.wiring.eos_linger_s * 1000))
+            for edge in out.edges:
+                edge.push.close(linger=int(self.wiring.eos_linger_s * 1000))
+                if edge.acks is not None:
+                    edge.acks.close(linger=0)
+        for state in self._inputs.values():
+            if state.ack_socket is not None:
+                state.ack_socket.close(linger=int(self.wiring.eos_linger_s * 1000))
         if self._status_socket is not None:
             self._status_socket.close(linger=200)
 
@@ -215,13 +293,18 @@ class Node:
             xpub.sndhwm = w.hwm
             xpub.linger = 0
             xpub.bind(w.pub_endpoint)
-            pushes = []
-            for endpoint in w.push_endpoints:
-                push = self.context.socket(zmq.PUSH)
-                push.sndhwm = w.hwm
-                push.bind(endpoint)
-                pushes.append(push)
-            self._outputs[name] = _Output(w, xpub, pushes)
+            edges = []
+            for index, endpoint in enumerate(w.push_endpoints):
+                edge = _Edge(self.context.socket(zmq.PUSH))
+                edge.push.sndhwm = w.hwm
+                edge.push.bind(endpoint)
+                if index < len(w.ack_endpoints):
+                    edge.acks = self.context.socket(zmq.PULL)
+                    edge.acks.linger = 0
+                    edge.acks.bind(w.ack_endpoints[index])
+                    edge.buffer = ResendBuffer(window=4 * w.hwm)
+                edges.append(edge)
+            self._outputs[name] = _Output(w, xpub, edges)
         if self.wiring.status_endpoint:
             self._status_socket = self.context.socket(zmq.XPUB)
             self._status_socket.setsockopt(zmq.XPUB_VERBOSER, 1)
@@ -270,18 +353,66 @@ class Node:
                     sockets[sock].subscribers += delta
 
     def _start_input_pump(self) -> None:
-        if self.wiring.inputs:
+        for state in self._inputs.values():
+            if state.wiring.ack_endpoint:
+                state.ack_socket = self.context.socket(zmq.PUSH)
+                state.ack_socket.connect(state.wiring.ack_endpoint)
+                state.ack_socket.send(hello_message(self.session))  # queued until the producer is there
+                state.sync = InputSync(self.session)
+        if self.wiring.inputs or self._buffers():
             self._pump = threading.Thread(target=self._pump_inputs, name=f"{self.name}-inputs", daemon=True)
             self._pump.start()
+
+    def _buffers(self) -> list[ResendBuffer]:
+        return [e.buffer for o in self._outputs.values() for e in o.edges if e.buffer is not None]
+
+    def _settle_outputs(self) -> None:
+        """Producer side: forget acknowledged frames; a consumer that (re)started gets a resync marker and
+        every unacknowledged frame again, before anything new (main thread)."""
+        for out in self._outputs.values():
+            for edge in out.edges:
+                if edge.buffer is None:
+                    continue
+                for session in edge.buffer.settle():
+                    pending = edge.buffer.unacknowledged()
+                    if pending:
+                        log.warning("node %s: consumer session %s on %s: sending %d unacknowledged frame(s) again",
+                                    self.name, session, out.wiring.topic, len(pending))
+                    self._send_waiting(edge.push, resync_message(out.wiring.topic, self.name, session),
+                                       stop_aware=False)
+                    for parts in pending:
+                        self._send_waiting(edge.push, parts, stop_aware=False)
+
+    def _send_acks(self) -> None:
+        """Consumer side: acknowledge what is finished (main thread)."""
+        for state in self._inputs.values():
+            if state.ack_socket is None:
+                continue
+            seq = state.tracker.due()
+            if seq is None and state.sync is not None and state.sync.reack:
+                state.sync.reack = False
+                seq = state.tracker.last_acked
+            if seq is not None:
+                try:
+                    state.ack_socket.send(ack_message(seq), flags=zmq.NOBLOCK)
+                except zmq.Again:
+                    pass  # acknowledgements are cumulative: the next one covers this
+
+    def _wait_for_news(self, timeout_s: float) -> None:
+        """Sleep until the receive thread has something (a frame, an acknowledgement) or `timeout_s`."""
+        self._wake.wait(timeout_s)
+        self._wake.clear()
 
     def _loop(self) -> None:
         next_produce = time.monotonic() if not self.INPUTS else None
         next_heartbeat = time.monotonic() + self.wiring.heartbeat_s
         while not self.stop_requested:
             now = time.monotonic()
-            if now >= next_heartbeat:
+            if now >= next_heartbeat or (self._status_due and now - self._last_status >= _STATUS_SOON_S):
                 self._send_status()
                 next_heartbeat = now + self.wiring.heartbeat_s
+            self._settle_outputs()
+            self._send_acks()
             if self.wiring.exit_with_parent and os.getppid() != self._parent_pid:
                 log.warning("node %s: launcher is gone, stopping", self.name)
                 self.request_stop()
@@ -300,11 +431,12 @@ class Node:
                 continue
             now = time.monotonic()
             wait = max(0.0, min(_TICK_S, next_heartbeat - now))
+            if self._status_due:
+                wait = min(wait, _STATUS_SOON_S)
             if next_produce is not None:
                 self._service_subscriptions(max(0.0, min(wait, next_produce - now)))
             else:
-                self._wake.wait(wait)
-                self._wake.clear()
+                self._wait_for_news(wait)
 
     def _handle_inputs(self) -> bool:
         handled = False
@@ -312,15 +444,47 @@ class Node:
             items = queue.take(self.batch_size)
             frames = [item for item in items if isinstance(item, SonarImage)]
             if frames:
-                self.process(input_name, frames)
+                self._process_guarded(input_name, frames)
                 handled = True
+            state = self._inputs[input_name]
+            if state.ack_socket is not None and queue.last_taken_seq not in (None, state.tracker.last_taken):
+                state.tracker.taken(queue.last_taken_seq, self._buffers())
         return handled
 
+    def _process_guarded(self, input_name: str, frames: list[SonarImage]) -> None:
+        """process(); a frame it cannot handle is rejected alone (a batch is retried frame by frame, so
+        process() must publish only once its whole batch succeeded)."""
+        try:
+            self.process(input_name, frames)
+            return
+        except _FRAME_FAULTS as error:
+            if len(frames) == 1:
+                self._reject(input_name, f"frame seq {frames[0].seq} cannot be processed: {error}")
+                return
+        for frame in frames:
+            try:
+                self.process(input_name, [frame])
+            except _FRAME_FAULTS as error:
+                self._reject(input_name, f"frame seq {frame.seq} cannot be processed: {error}")
+
+    def _reject(self, input_name: str, reason: str) -> None:
+        """Count one malformed message (receive thread) or unprocessable frame (main thread)."""
+        with self._count_lock:
+            self.malformed += 1
+        self._status_due = True
+        state = self._inputs[input_name]
+        state.rejected += 1
+        if state.rejected <= _WARN_FIRST or state.rejected % _WARN_EVERY == 0:
+            log.warning("node %s: input %s (topic %r): rejected (%d so far on this input): %s", self.name,
+                        input_name, state.wiring.topic, state.rejected, reason)
+
     def _send_end_of_stream(self, reason: str) -> None:
+        self._send_acks()
+        self._await_acknowledgements()
         for out in self._outputs.values():
             message = end_of_stream_message(out.wiring.topic, self.name, reason)
-            for push in out.pushes:
-                self._send_waiting(push, message, stop_aware=False)
+            for edge in out.edges:
+                self._send_waiting(edge.push, message, stop_aware=False)
         # In-graph SUB consumers hang up when they see end of stream; resend until they all have (PUB may
         # drop under load). Subscribers from outside the graph are not waited for.
         deadline = time.monotonic() + self.wiring.eos_linger_s
@@ -339,6 +503,23 @@ class Node:
                 return
             self._service_subscriptions(_EOS_RESEND_S)
 
+    def _await_acknowledgements(self) -> None:
+        """Before end of stream: every frame acknowledged, resending to consumers that restart meanwhile
+        (up to ready_timeout_s: a restarted consumer has to load its model again). A stop request ends the
+        wait: what is in flight still arrives unless a consumer crashes now."""
+        deadline = time.monotonic() + self.wiring.ready_timeout_s
+        while not self.stop_requested:
+            self._settle_outputs()
+            self._send_acks()
+            unacked = sum(len(b) for b in self._buffers())
+            if not unacked:
+                return
+            if time.monotonic() > deadline:
+                log.error("node %s: %d frame(s) never acknowledged by a lossless consumer; giving up on them",
+                          self.name, unacked)
+                return
+            self._wait_for_news(_TICK_S)
+
     def _send_waiting(self, sock: zmq.Socket, parts: list, stop_aware: bool) -> None:
         """Send on a PUSH, waiting (in short polls) until the consumer has room."""
         deadline = time.monotonic() + self.wiring.eos_linger_s
@@ -356,58 +537,107 @@ class Node:
 
     # ---- receive thread --------------------------------------------------------------------------
     def _pump_inputs(self) -> None:
-        """Owns the input sockets: drains them into the policy queues until stop or every input ended."""
-        sockets: dict[zmq.Socket, tuple[str, InputWiring]] = {}
+        """Owns the input sockets and the acknowledgement sockets of lossless outputs: drains inputs into the
+        policy queues (until a stop request, or every input ended) and hands acknowledgements to the resend
+        buffers (until shutdown: a stopping node still waits for its consumers' acknowledgements)."""
+        inputs: dict[zmq.Socket, str] = {}
+        acks = {e.acks: e.buffer for o in self._outputs.values() for e in o.edges if e.acks is not None}
         try:
             for input_name, w in self.wiring.inputs.items():
                 sock = self.context.socket(zmq.PULL if w.socket_kind == "pull" else zmq.SUB)
                 sock.linger = 0
                 sock.rcvhwm = max(2, w.policy.capacity)
                 if w.socket_kind == "sub":
-                    sock.setsockopt(zmq.SUBSCRIBE, w.topic.encode())
+                    # An external publisher is heard on every topic, so frames on a topic nobody takes (a typo
+                    # in the simulator's topic) are counted and reported instead of vanishing in the filter.
+                    sock.setsockopt(zmq.SUBSCRIBE, w.topic.encode() if w.in_graph else b"")
                 sock.connect(w.endpoint)
-                sockets[sock] = (input_name, w)
-            while not self._stop.is_set() and sockets:
+                inputs[sock] = input_name
+            while not self._closing.is_set() and (inputs or acks):
                 poller = zmq.Poller()
-                for sock, (input_name, _) in sockets.items():
+                waiting_for_room = False
+                for sock, input_name in inputs.items():
+                    if self._stop.is_set():
+                        break
                     if self.queues[input_name].has_room():
                         poller.register(sock, zmq.POLLIN)
+                    else:
+                        waiting_for_room = True
+                for sock in acks:
+                    poller.register(sock, zmq.POLLIN)
                 if not poller.sockets:
-                    next(iter(self.queues.values())).wait_for_room(_TICK_S)
+                    if waiting_for_room:
+                        next(iter(self.queues.values())).wait_for_room(_TICK_S)
+                    else:
+                        self._closing.wait(_TICK_S)
                     continue
-                readable = dict(poller.poll(_TICK_S * 1000))
-                for sock, (input_name, w) in list(sockets.items()):
-                    queue = self.queues[input_name]
+                # A full queue frees up without any socket event: look again soon.
+                readable = dict(poller.poll(_ROOM_POLL_S * 1000 if waiting_for_room else _TICK_S * 1000))
+                for sock, buffer in acks.items():
                     if sock in readable:
-                        self._drain(sock, input_name, w)
+                        self._read_acknowledgements(sock, buffer)
+                for sock, input_name in list(inputs.items()):
+                    w, queue = self.wiring.inputs[input_name], self.queues[input_name]
+                    if sock in readable:
+                        self._drain(sock, input_name)
                     elif (w.in_graph and self._producers_ended.is_set() and queue.has_room()
                           and not sock.poll(0)):
                         queue.put(EndOfStream("producers ended"))
                         self._wake.set()
                     if queue.ended:
                         sock.close(linger=0)  # hanging up tells an XPUB producer we got end of stream
-                        del sockets[sock]
+                        del inputs[sock]
         finally:
-            for sock in sockets:
+            for sock in inputs:
                 sock.close(linger=0)
 
-    def _drain(self, sock: zmq.Socket, input_name: str, w: InputWiring) -> None:
-        queue = self.queues[input_name]
+    def _read_acknowledgements(self, sock: zmq.Socket, buffer: ResendBuffer) -> None:
+        while True:
+            try:
+                control = parse_control(sock.recv(zmq.NOBLOCK))
+            except zmq.Again:
+                break
+            if control is None:
+                continue
+            kind, value = control
+            if kind == "ack":
+                buffer.on_ack(value)
+            else:
+                buffer.on_hello(value)
+        self._wake.set()
+
+    def _drain(self, sock: zmq.Socket, input_name: str) -> None:
+        queue, state = self.queues[input_name], self._inputs[input_name]
         while queue.has_room() and not queue.ended:
             try:
                 parts = sock.recv_multipart(flags=zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
             try:
-                topic, kind, body = decode_message(parts)
+                message = decode_message(parts)
             except WireError as error:
-                self.malformed += 1
-                log.warning("node %s: input %s: malformed message: %s", self.name, input_name, error)
+                self._reject(input_name, f"malformed message: {error}")
                 continue
-            if topic != w.topic:
-                continue  # SUB matches prefixes; "sim/frames2" is not our "sim/frames"
-            if kind == FRAME_TYPE:
-                queue.put(body)
-            elif kind == STATUS_TYPE and body.get("end_of_stream"):
-                queue.put(EndOfStream(str(body.get("reason", "finished"))))
+            if message.topic != state.wiring.topic:
+                if message.kind == FRAME_TYPE:
+                    self._count_other_topic(input_name, message.topic)
+                continue
+            if message.kind == FRAME_TYPE:
+                if state.sync is not None and not state.sync.accept(message.body.seq):
+                    continue  # before our resync marker (it comes again after it), or a duplicate
+                queue.put(message.body, message.sent_ns)
+            elif message.kind == STATUS_TYPE:
+                if state.sync is not None:
+                    state.sync.on_status(message.body)
+                if message.body.get("end_of_stream"):
+                    queue.put(EndOfStream(str(message.body.get("reason", "finished"))))
             self._wake.set()
+
+    def _count_other_topic(self, input_name: str, topic: str) -> None:
+        self.other_topic += 1
+        self._status_due = True
+        state = self._inputs[input_name]
+        if topic not in state.other_topics and len(state.other_topics) < _WARN_FIRST:
+            state.other_topics.add(topic)
+            log.warning("node %s: input %s takes topic %r only; frames on topic %r are ignored (counted as "
+                        "other_topic)", self.name, input_name, state.wiring.topic, topic)

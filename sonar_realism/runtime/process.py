@@ -2,13 +2,14 @@
 
 SIGINT and SIGTERM ask the node to stop: it finishes the frame at hand, sends end of stream and exits 0.
 The node also stops by itself when its launcher disappears (Wiring.exit_with_parent), so a killed
-launcher leaves no orphans behind.
+launcher leaves no orphans behind. OMP_WAIT_POLICY defaults to PASSIVE in node processes (docs/nodes.md).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -25,6 +26,9 @@ def node_spec(name: str, type_name: str, params: dict[str, Any], wiring: Wiring)
 
 
 def main(argv: list[str]) -> int:
+    # Before torch loads (a node imports it in configure()): its OpenMP workers otherwise spin for a while after
+    # every model call, taking the cores that the sockets and the other nodes need.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     spec = json.loads(Path(argv[0]).read_text())
     node_class = resolve_node_type(spec["type"])

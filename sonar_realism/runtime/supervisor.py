@@ -24,6 +24,11 @@ from sonar_realism.wire import STATUS_TYPE, decode_message
 
 log = logging.getLogger(__name__)
 
+# Status counters that add up over a node's lives: run_summary.json reports their sum over every session
+# (a restarted node starts counting from 0 again).
+SUMMED_COUNTERS = ("frames_in", "frames_out", "dropped", "stale", "seq_gaps", "out_of_order", "malformed",
+                   "other_topic", "duplicates", "resent")
+
 
 class ThreadWorker:
     """A node running as a thread of the launcher (inproc mode). Threads cannot be killed: a node that
@@ -135,6 +140,7 @@ class Supervisor:
         self.restarts: dict[str, int] = dict.fromkeys(graph.nodes, 0)
         self.exit_codes: dict[str, int] = {}
         self.last_status: dict[str, dict[str, Any]] = {}
+        self.sessions: dict[str, dict[str, dict[str, Any]]] = {name: {} for name in graph.nodes}
         self._stop = threading.Event()
         self._status_socket: zmq.Socket | None = None
 
@@ -235,12 +241,19 @@ class Supervisor:
             except zmq.Again:
                 return
             try:
-                _, kind, body = decode_message(parts)
+                message = decode_message(parts)
             except WireError:
                 continue
-            if kind == STATUS_TYPE:
+            if message.kind == STATUS_TYPE and message.body["node"] in self.sessions:
+                body = message.body
                 self.last_status[body["node"]] = body
+                self.sessions[body["node"]][str(body.get("session", ""))] = body
 
     def summary(self) -> dict[str, Any]:
+        """Per node: exit code, restarts, `totals` (SUMMED_COUNTERS over all its sessions, i.e. restarts
+        included) and `status` (the last status message of its last session)."""
         return {name: {"exit_code": self.exit_codes.get(name), "restarts": self.restarts[name],
+                       "sessions": len(self.sessions[name]),
+                       "totals": {key: sum(int(s.get(key, 0)) for s in self.sessions[name].values())
+                                  for key in SUMMED_COUNTERS},
                        "status": self.last_status.get(name)} for name in self.graph.nodes}

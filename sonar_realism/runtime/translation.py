@@ -28,6 +28,10 @@ def file_sha256(path: str | Path) -> str:
 class TranslationStage:
     """Calls the translator on a batch and stamps every output with the input's seq/stamp/frame_id.
 
+    The output keeps the input's `seq`: it names the ping along the whole pipeline (a viewer pairs simulated
+    and translated frames by it) and it is what makes a lossless resend after a crash idempotent. So gaps
+    downstream of a translator include the frames it dropped itself (its `dropped`/`stale` counters).
+
     With a `seed`, a batch is seeded with `seed + seq of its first frame`, so a replayed stream gives the
     same samples when it is batched the same way (batches depend on arrival timing under load).
     """
@@ -43,8 +47,11 @@ class TranslationStage:
         self.last_ms = 0.0
 
     def __call__(self, frames: Sequence[SonarImage]) -> list[SonarImage]:
+        """One output per input frame. A [1, ranges, beams] input is the same image as [ranges, beams] and is
+        translated; several samples per input raise FrameError (the node counts that frame as malformed)."""
         if not frames:
             return []
+        frames = [f.sample(0) if f.intensity.ndim == 3 and f.n_samples == 1 else f for f in frames]
         batch_seed = None if self.seed is None else self.seed + frames[0].seq
         start = time.perf_counter()
         outputs = self.translator.translate(list(frames), self.n, self.temperature, batch_seed)

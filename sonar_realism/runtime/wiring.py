@@ -6,7 +6,9 @@ Socket pattern per edge, chosen by the consumer's delivery policy (the policy de
   source holds its first frame until every in-graph subscriber is there (no slow-joiner loss, no sleeps).
 - `lossless`: the producer binds one PUSH per consumer edge, the consumer connects a PULL. A PUSH
   send waits until the peer is connected and has room, so nothing is dropped and a slow consumer
-  slows the producer down (backpressure).
+  slows the producer down (backpressure). In a launch each such edge also has an acknowledgement
+  channel back (producer binds a PULL, consumer connects a PUSH), so frames survive a consumer crash
+  (runtime/lossless.py).
 A node's status/heartbeat goes out on its own XPUB (`<node>/status`).
 """
 
@@ -27,6 +29,7 @@ class InputWiring:
     topic: str
     policy: InputPolicy = field(default_factory=InputPolicy)
     in_graph: bool = False  # produced by a node of the same launch (the launcher reports when it has ended)
+    ack_endpoint: str = ""  # lossless in-graph edges: where acknowledgements go (runtime/lossless.py)
 
     @property
     def socket_kind(self) -> str:
@@ -36,12 +39,15 @@ class InputWiring:
 @dataclass(frozen=True)
 class OutputWiring:
     """One output: an XPUB at `pub_endpoint` for best-effort consumers (and anyone outside the graph),
-    plus one PUSH per lossless consumer. `expected_subscribers` in-graph SUBs are awaited before sending."""
+    plus one PUSH per lossless consumer. `expected_subscribers` in-graph SUBs are awaited before sending.
+    `ack_endpoints[i]` (when given) is where the consumer of `push_endpoints[i]` acknowledges frames; the
+    producer then keeps up to `4 * hwm` unacknowledged frames to send again after a consumer restart."""
 
     topic: str
     pub_endpoint: str
     expected_subscribers: int = 0
     push_endpoints: tuple[str, ...] = ()
+    ack_endpoints: tuple[str, ...] = ()
     hwm: int = 16
 
 
@@ -64,6 +70,7 @@ class Wiring:
         data: dict[str, Any] = json.loads(text)
         inputs = {name: InputWiring(**{**w, "policy": InputPolicy(**w["policy"])})
                   for name, w in data.pop("inputs").items()}
-        outputs = {name: OutputWiring(**{**w, "push_endpoints": tuple(w["push_endpoints"])})
+        outputs = {name: OutputWiring(**{**w, "push_endpoints": tuple(w["push_endpoints"]),
+                                         "ack_endpoints": tuple(w["ack_endpoints"])})
                    for name, w in data.pop("outputs").items()}
         return cls(inputs=inputs, outputs=outputs, **data)
