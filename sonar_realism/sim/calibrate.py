@@ -32,7 +32,14 @@ import numpy as np
 from sonar_realism import plots
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, make_effect
+from sonar_realism.sim.effects import (
+    EFFECTS,
+    PIPELINE_ORDER,
+    Effect,
+    apply_effects,
+    calibrated_parameters,
+    make_effect,
+)
 from sonar_realism.sim.simulate import simulate
 
 PROFILE_BINS = 48
@@ -40,14 +47,8 @@ HIST_BINS = 64
 MAX_LAG = 3
 DETREND_BOX = 9
 
-# (effect, parameter, log-scale search) fitted by the calibration; others keep their physical defaults.
-FITTED: tuple[tuple[str, str, bool], ...] = (
-    ("speckle", "shape_nu", True), ("speckle", "grain_beams", False), ("speckle", "grain_ranges", False),
-    ("beam_sidelobes", "sidelobe_db", False), ("range_blur", "resolution_m", True),
-    ("range_blur", "sidelobe_db", False),
-    ("tvg_noise", "noise_amplitude", False), ("tvg_noise", "tvg_log_coeff_db", False),
-    ("tvg_noise", "residual_ramp_db", False), ("elevation_spread", "beamwidth_deg", False),
-    ("ring_down", "amplitude", False), ("ring_down", "decay_m", True), ("gamma_quantization", "gamma", False))
+# (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
+FITTED: tuple[tuple[str, str, bool], ...] = calibrated_parameters()
 
 
 @dataclass(frozen=True)
