@@ -270,6 +270,21 @@ def alt_ring_down(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.r
     return np.abs(x + ring * np.exp(1j * phase)).astype(np.float32)
 
 
+@alternative("water_column", {"haze_level": (0.05, 0.2), "stripe_contrast": (0.2, 0.6),
+                              "stripe_width_beams": (1.0, 4.0)})
+def alt_water_column(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
+    """Haze as many weak discrete scatterers per cell (Rayleigh by sum, not by a Gaussian draw); stripes as a
+    random walk of per-beam gain in dB, smoothed by a box."""
+    per_cell = 6
+    phases = rng.uniform(0, 2 * np.pi, (per_cell,) + x.shape)
+    haze = np.abs(np.exp(1j * phases).sum(axis=0)) * (p["haze_level"] / math.sqrt(per_cell))
+    width = max(1, int(round(2 * p["stripe_width_beams"])))
+    steps = rng.standard_normal(x.shape[1] + width)
+    gain_db = np.convolve(steps, np.ones(width) / math.sqrt(width), mode="valid")[: x.shape[1]]
+    gain = np.exp(p["stripe_contrast"] * gain_db)
+    return (np.sqrt(x * x + haze * haze) * gain[None, :]).astype(np.float32)
+
+
 @alternative("interference", {"rate_per_ping": (1.0, 2.5), "amplitude": (0.4, 0.9), "floor_db": (-20.0, -8.0),
     "thickness_m": (0.03, 0.12)})
 def alt_interference(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:

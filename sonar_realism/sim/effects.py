@@ -575,6 +575,50 @@ class RingDown(Effect, order=90):
 
 
 @dataclass(frozen=True)
+class WaterColumn(Effect, order=75):
+    """What the water column shows between the transducer and the seabed: volume reverberation and beam stripes.
+
+    Suspended particles and plankton back-scatter weakly everywhere: a speckled haze of rms amplitude
+    `haze_level` (after TVG, so flat in range) that fills the rows above the seabed return. Each beam's receive
+    chain has its own gain error, fixed over a ping: a log-normal gain of rms `stripe_contrast` (natural log),
+    correlated over `stripe_width_beams` beams, multiplies haze and signal alike, so vertical stripes run down
+    the whole fan and show most where nothing else does (the water column).
+    """
+
+    name: ClassVar[str] = "water_column"
+    haze_level: float = 0.02
+    stripe_contrast: float = 0.15
+    stripe_width_beams: float = 1.5
+    PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
+        "haze_level": (0.0, 0.3), "stripe_contrast": (0.0, 0.8), "stripe_width_beams": (0.3, 8.0)}
+    VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
+        "haze_level": (0.0, 10.0), "stripe_contrast": (0.0, 3.0), "stripe_width_beams": (0.0, 100.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("haze_level", "stripe_contrast")
+
+    def beam_gain(self, n_beams: int, rng: np.random.Generator) -> np.ndarray:
+        """Per-beam amplitude gain of one ping (log-normal, unit median)."""
+        white = rng.standard_normal(n_beams + 16).astype(np.float32)
+        if self.stripe_width_beams > 0.3:
+            kernel = cv2.getGaussianKernel(2 * int(math.ceil(3 * self.stripe_width_beams)) + 1,
+                                           self.stripe_width_beams, cv2.CV_32F).ravel()
+            white = np.convolve(white, kernel / math.sqrt(float((kernel ** 2).sum())), mode="same")
+        return np.exp(np.float32(self.stripe_contrast) * white[8:8 + n_beams]).astype(np.float32)
+
+    def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
+        planes = _planes(intensity)
+        out = np.empty_like(planes)
+        level = np.float32(self.haze_level / math.sqrt(2.0))
+        for i, plane in enumerate(planes):
+            gain = self.beam_gain(frame.n_beams, rng)[None, :]
+            re, im = _complex_gaussian(rng, plane.shape)
+            re *= level
+            im *= level
+            re += plane
+            out[i] = np.sqrt(re * re + im * im) * gain
+        return out.reshape(intensity.shape)
+
+
+@dataclass(frozen=True)
 class Interference(Effect, order=80):
     """Pulses from other acoustic sources (another sonar, a DVL) arriving out of sync with our pings.
 
