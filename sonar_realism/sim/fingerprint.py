@@ -6,12 +6,14 @@ Frames are compared as the real export made them: rescaled per frame so the maxi
 - speckle grain: autocorrelation of the detrended image at lags 1-3 across beams and along range;
 - range profile: row mean against normalised range and the row 10th percentile (noise floor); bearing profile;
 - near-field band: mean of the first 2 % of rows (ring-down) and of the next 2-8 % (the dark zone behind it);
-- beam stripes: rms across beams of the column means of the top quarter, detrended across beams, over their mean.
+- beam stripes: rms across beams of the column means of the top quarter, detrended across beams, over their mean;
+- near-zero share (black water) and speckle contrast (the frame over its local mean, as evaluate.texture has it).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +28,8 @@ HIST_BINS = 64
 MAX_LAG = 3
 DETREND_BOX = 9
 STRIPE_BOX = 15
+NEAR_ZERO = 2.5 / 255
+SPECKLE_SIGMA = 4.0
 
 
 @dataclass(frozen=True)
@@ -41,6 +45,8 @@ class Fingerprint:
     near_band: float
     dark_zone: float
     stripes: float
+    near_zero: float  # share of pixels at or below 2 counts of 255
+    speckle_contrast: float  # std / mean of the frame over its local mean (Gaussian, sigma 4 cells)
 
     def as_dict(self) -> dict[str, Any]:
         return {k: (v.round(4).tolist() if isinstance(v, np.ndarray) else round(v, 4))
@@ -78,19 +84,26 @@ def stripe_level(image: np.ndarray) -> float:
     return float(np.sqrt(((top - trend) ** 2).mean()) / max(float(top.mean()), 1e-6))
 
 
+def speckle_contrast(image: np.ndarray) -> float:
+    """Speckle contrast: std / mean of the frame divided by its local mean, where that mean is above the floor."""
+    local = cv2.GaussianBlur(image, (0, 0), SPECKLE_SIGMA)
+    floor = max(1e-3, 0.05 * float(np.percentile(image, 99)))
+    ratio = image[local > floor] / local[local > floor]
+    return float(ratio.std() / ratio.mean()) if ratio.size > 16 else math.nan
+
+
 def fingerprint(images: Sequence[np.ndarray]) -> Fingerprint:
     """Targets of images already rescaled to [0, 1] (each [n_ranges, n_beams], any n_ranges)."""
     if not images:
         raise ConfigError("calibrate: no frames to measure")
     hist = np.zeros(HIST_BINS)
     acf_b, acf_r = np.zeros(MAX_LAG), np.zeros(MAX_LAG)
-    means, floors, columns, near, dark, stripes = [], [], [], [], [], []
+    means, floors, columns, near, dark, stripes, zeros, contrasts = [], [], [], [], [], [], [], []
     for image in images:
         hist += np.histogram(image, bins=HIST_BINS, range=(0.0, 1.0))[0]
         local = cv2.blur(image, (DETREND_BOX, DETREND_BOX), borderType=cv2.BORDER_REFLECT_101)
         detrended = image - local
-        # grain is measured where there is signal (seabed, targets): local mean above the frame median
-        weight = (local > np.median(local)).astype(np.float32)
+        weight = np.ones_like(image)  # every pixel, as the evaluation's grain statistic counts them
         acf_b += _acf(detrended, weight, axis=1)
         acf_r += _acf(detrended, weight, axis=0)
         means.append(resample_profile(image.mean(axis=1), PROFILE_BINS))
@@ -100,10 +113,13 @@ def fingerprint(images: Sequence[np.ndarray]) -> Fingerprint:
         near.append(float(image[: max(1, rows // 50)].mean()))
         dark.append(float(image[max(1, rows // 50): max(2, rows * 8 // 100)].mean()))
         stripes.append(stripe_level(image))
+        zeros.append(float((image <= NEAR_ZERO).mean()))
+        contrasts.append(speckle_contrast(image))
     n = len(images)
     return Fingerprint(hist / hist.sum() * HIST_BINS, acf_b / n, acf_r / n, np.mean(means, axis=0),
                        np.mean(floors, axis=0), np.mean(columns, axis=0), float(np.mean(near)),
-                       float(np.mean(dark)), float(np.mean(stripes)))
+                       float(np.mean(dark)), float(np.mean(stripes)), float(np.mean(zeros)),
+                       float(np.nanmean(contrasts)))
 
 
 def distance(sim: Fingerprint, real: Fingerprint) -> dict[str, float]:
@@ -119,6 +135,8 @@ def distance(sim: Fingerprint, real: Fingerprint) -> dict[str, float]:
         "noise_floor": float(np.abs(sim.row_floor - real.row_floor).mean()),
         "near_band": abs(sim.near_band - real.near_band) + abs(sim.dark_zone - real.dark_zone),
         "stripes": 0.2 * abs(sim.stripes - real.stripes),
+        "near_zero": abs(sim.near_zero - real.near_zero),
+        "speckle_contrast": 0.2 * abs(sim.speckle_contrast - real.speckle_contrast),
     }
     parts["total"] = float(sum(parts.values()))
     return parts

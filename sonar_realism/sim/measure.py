@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from sonar_realism.sim.fingerprint import NEAR_ZERO
+
 ONSET_GROUPS = 16
 TILT_GRID_DEG = np.arange(-5.0, 60.0, 0.5)
 # Weak pull of the tilt towards this value: where the fan is too narrow for the onset to curve, it decides.
@@ -170,6 +172,6 @@ def highlight_ratio(image: np.ndarray, columns: slice, shadow_row: int) -> float
     return float(np.percentile(ahead, 95)) / max(seabed, 1e-6) if ahead.size else math.nan
 
 
-def near_zero_fraction(image: np.ndarray, threshold: float = 2.5 / 255) -> float:
+def near_zero_fraction(image: np.ndarray, threshold: float = NEAR_ZERO) -> float:
     """Share of pixels at or below 2 counts of the frame max (black water)."""
     return float((image <= threshold).mean())
