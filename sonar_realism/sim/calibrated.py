@@ -20,6 +20,7 @@ import numpy as np
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.calibration import Calibration, GridMode
 from sonar_realism.sim.effects import Effect, apply_effects
+from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
 from sonar_realism.sim.sensor import SensorConfig
 from sonar_realism.sim.simulate import frame_for
@@ -167,11 +168,15 @@ def _rescale_to_max(frame: SonarImage) -> SonarImage:
 
 
 def simulate_calibrated(calibration: Calibration, n: int, seed: int = 0, chain: Sequence[Effect] | None = None,
-                        ) -> Iterator[tuple[SonarImage, np.ndarray]]:
-    """n (frame, object mask) pairs of the calibrated sensor, each a new randomised view."""
+                        workers: int = 1) -> Iterator[tuple[SonarImage, np.ndarray]]:
+    """n (frame, object mask) pairs of the calibrated sensor, each a new randomised view (same frames whatever
+    the number of worker processes)."""
     effects = list(chain) if chain is not None else calibration.effect_chain()
-    for index in range(n):
+
+    def one(index: int) -> tuple[SonarImage, np.ndarray]:
         clean, mask = calibrated_view(calibration, seed, index)
         frame = finish(calibration, clean, effects, np.random.default_rng([seed, index]))
         meta: dict[str, Any] = {**frame.meta, "source": "sim-calibrated", "calibration": calibration.source}
-        yield frame.replace(meta=meta), mask
+        return frame.replace(meta=meta), mask
+
+    yield from frames_in_parallel(one, n, workers)

@@ -61,6 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dtype", default="float32", choices=STORAGE_DTYPES,
                         help="storage of frames without gamma_quantization: float32 amplitude, or uint16 "
                              "(amplitude * 65535, compact lossless PNG); 8-bit output comes from gamma_quantization")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="render frames on this many processes (same frames, same order; default 1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -108,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
     progress = _Progress(args.n, enabled=not args.quiet)
 
     def frames() -> Iterator[SonarImage]:
-        for index, (frame, mask) in enumerate(simulate(world, effects, args.n, args.seed, sensor)):
+        for index, (frame, mask) in enumerate(simulate(world, effects, args.n, args.seed, sensor,
+                                                                  workers=args.workers)):
             if not cv2.imwrite(str(out / "masks" / f"{index:06d}.png"), mask):
                 raise ConfigError(f"could not write {out / 'masks' / f'{index:06d}.png'}")
             progress.step()
@@ -149,12 +152,13 @@ def run_calibrated(args: argparse.Namespace) -> int:
     poses: list[dict[str, float]] = []
 
     if args.scene is None:
-        pairs = simulate_calibrated(calibration, args.n, args.seed, chain)
+        pairs = simulate_calibrated(calibration, args.n, args.seed, chain, workers=args.workers)
     else:
         sensor = sensor_for(calibration.grid.modes[0], calibration.mounting.vertical_fov_deg)
         world = build_scene(args.scene, args.seed, sensor.max_range_m)
         pairs = ((finish(calibration, frame, chain, np.random.default_rng([args.seed, i])), mask)
-                 for i, (frame, mask) in enumerate(simulate(world, "none", args.n, args.seed, sensor)))
+                 for i, (frame, mask) in enumerate(simulate(world, "none", args.n, args.seed, sensor,
+                                                            workers=args.workers)))
 
     def frames() -> Iterator[SonarImage]:
         for index, (frame, mask) in enumerate(pairs):

@@ -136,7 +136,7 @@ def distance(sim: Fingerprint, real: Fingerprint) -> dict[str, float]:
         "near_band": abs(sim.near_band - real.near_band) + abs(sim.dark_zone - real.dark_zone),
         "stripes": 0.2 * abs(sim.stripes - real.stripes),
         "near_zero": abs(sim.near_zero - real.near_zero),
-        "speckle_contrast": 0.2 * abs(sim.speckle_contrast - real.speckle_contrast),
+        "speckle_contrast": abs(sim.speckle_contrast - real.speckle_contrast),
     }
     parts["total"] = float(sum(parts.values()))
     return parts
