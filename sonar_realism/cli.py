@@ -15,6 +15,7 @@ from sonar_realism.errors import SonarRealismError
 SUBCOMMANDS = {
     "inspect": ("sonar_realism.io.inspect", "per-frame metadata of any supported recording"),
     "simulate": ("sonar_realism.sim.cli", "simulate sonar frames with a chosen set of real-sensor effects"),
+    "calibrate": ("sonar_realism.sim.calibrate", "fit the simulator to a sensor from its recording (CALIB.json)"),
     "train": ("sonar_realism.train", "train the cDFCVAE (or the CycleGAN baseline)"),
     "translate": ("sonar_realism.translate", "turn simulated frames into n realistic samples each"),
     "evaluate": ("sonar_realism.evaluate.cli", "realism evaluation: Table I and further metrics"),

@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
+from sonar_realism.sim import effects as effects_module
 from sonar_realism.sim.effects import (
     EFFECTS,
     PIPELINE_ORDER,
     BeamSidelobes,
+    Effect,
     ElevationSpread,
     GammaQuantization,
     Interference,
@@ -24,6 +28,7 @@ from sonar_realism.sim.effects import (
     Speckle,
     TvgNoise,
     apply_effects,
+    calibrated_parameters,
     make_effect,
     resolve_effects,
 )
@@ -48,11 +53,53 @@ def rng(seed: int = 0) -> np.random.Generator:
     return np.random.default_rng(seed)
 
 
-def test_catalogue_has_the_canonical_names_in_pipeline_order() -> None:
-    assert set(EFFECTS) == set(PIPELINE_ORDER) == {
-        "speckle", "beam_sidelobes", "range_blur", "tvg_noise", "elevation_spread", "multipath", "motion_blur",
-        "ring_down", "interference", "gamma_quantization"}
+def test_catalogue_is_the_registry_in_pipeline_order() -> None:
+    assert set(EFFECTS) == set(PIPELINE_ORDER) and len(PIPELINE_ORDER) == len(EFFECTS)
+    assert [EFFECTS[n].ORDER for n in PIPELINE_ORDER] == sorted(EFFECTS[n].ORDER for n in PIPELINE_ORDER)
     assert PIPELINE_ORDER[-1] == "gamma_quantization"
+    assert calibrated_parameters() == tuple((n, p, p in EFFECTS[n].LOG_SCALE) for n in EFFECTS
+                                            for p in EFFECTS[n].CALIBRATED)
+
+
+def test_adding_an_effect_is_one_class() -> None:
+    @dataclass(frozen=True)
+    class Dimmer(Effect, order=95):
+        """A test-only stage: halves the amplitude. Registered by its class statement alone, then removed so the
+        catalogue the other tests see is unchanged."""
+
+        name: ClassVar[str] = "test_dimmer"
+        factor: float = 0.5
+        PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {"factor": (0.1, 1.0)}
+        VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {"factor": (0.0, 1.0)}
+        CALIBRATED: ClassVar[tuple[str, ...]] = ("factor",)
+
+        def apply(self, intensity, frame, rng):
+            return intensity * np.float32(self.factor)
+
+    try:
+        assert effects_module._REGISTRY["test_dimmer"] is Dimmer
+        with pytest.raises(ConfigError, match="registered twice"):
+            class Again(Dimmer, order=96):
+                """Same name as Dimmer."""
+    finally:
+        del effects_module._REGISTRY["test_dimmer"]
+
+
+def test_an_effect_cannot_calibrate_a_parameter_without_bounds() -> None:
+    with pytest.raises(ConfigError, match="without bounds"):
+        @dataclass(frozen=True)
+        class Broken(Effect, order=97):
+            """Declares a calibrated parameter it has no search bounds for."""
+
+            name: ClassVar[str] = "test_broken"
+            level: float = 1.0
+            PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {}
+            VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {"level": (0.0, 2.0)}
+            CALIBRATED: ClassVar[tuple[str, ...]] = ("level",)
+
+            def apply(self, intensity, frame, rng):
+                return intensity
+    assert "test_broken" not in effects_module._REGISTRY
 
 
 @pytest.mark.parametrize("name", PIPELINE_ORDER)

@@ -167,3 +167,13 @@ def test_narrow_high_frequency_mode_keeps_the_scene_in_view() -> None:
     assert np.degrees(frame.fov_rad) == pytest.approx(60.0, abs=0.05)
     assert frame.max_range_m < 6.0 and mask.any()
     assert (frame.intensity > 0).mean() > 0.05  # seabed reached within the shorter range
+
+
+def test_a_pool_of_processes_gives_the_same_frames_in_the_same_order() -> None:
+    sensor = dataclasses.replace(M1200D_2100KHZ, n_beams=32, n_ranges=64)
+    one = list(simulate("default", "all", 5, 3, sensor))
+    pooled = list(simulate("default", "all", 5, 3, sensor, workers=2))
+    assert len(pooled) == 5
+    for (frame_a, mask_a), (frame_b, mask_b) in zip(one, pooled, strict=True):
+        np.testing.assert_array_equal(frame_a.intensity, frame_b.intensity)
+        np.testing.assert_array_equal(mask_a, mask_b)

@@ -42,23 +42,30 @@ from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, SOUND_SPEED_MPS, 
 
 AltEffect = Callable[[np.ndarray, SonarImage, dict[str, Any], np.random.Generator], np.ndarray]
 
-WITHHELD = ("beam_gain_ripple", "lens_reflection")
-
 # Hidden parameters are drawn from these ranges: inside the catalogue's PARAM_BOUNDS and strong enough to be seen.
-HIDDEN_RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "speckle": {"shape_nu": (1.0, 20.0), "grain_beams": (0.6, 2.0), "grain_ranges": (0.4, 1.5)},
-    "beam_sidelobes": {"mainlobe_deg": (0.8, 2.5), "sidelobe_db": (-25.0, -13.0), "crosstalk_db": (-35.0, -22.0)},
-    "range_blur": {"resolution_m": (0.06, 0.2), "sidelobe_db": (-30.0, -15.0)},
-    "tvg_noise": {"noise_amplitude": (0.08, 0.3), "tvg_log_coeff_db": (20.0, 40.0),
-                  "absorption_db_per_m": (0.2, 1.0), "residual_ramp_db": (-6.0, 6.0)},
-    "elevation_spread": {"beamwidth_deg": (8.0, 16.0), "floor_db": (-30.0, -15.0)},
-    "multipath": {"reflection_coeff": (0.4, 0.7), "ghost_offset_m": (1.0, 4.0)},
-    "motion_blur": {"yaw_rate_deg_s": (20.0, 50.0), "surge_m_s": (0.5, 1.5), "integration_s": (0.08, 0.2)},
-    "ring_down": {"amplitude": (0.3, 0.8), "decay_m": (0.1, 0.4), "beam_ripple": (0.1, 0.4)},
-    "interference": {"rate_per_ping": (1.0, 2.5), "amplitude": (0.4, 0.9), "floor_db": (-20.0, -8.0),
-                     "thickness_m": (0.03, 0.12)},
-    "gamma_quantization": {"gain": (0.8, 2.0), "gamma": (0.4, 0.7)},
-}
+# Filled by @alternative: the "real" implementation of each effect and the ranges its hidden parameters are drawn
+# from (inside the catalogue's PARAM_BOUNDS and strong enough to be seen). check_catalogue_defaults() holds it to the
+# effect registry: every catalogue effect has exactly one alternative.
+ALTERNATIVES: dict[str, AltEffect] = {}
+HIDDEN_RANGES: dict[str, dict[str, tuple[float, float]]] = {}
+# Withheld effects (not in the catalogue) and the catalogue effect each sits before in the physical chain.
+WITHHELD_BEFORE: dict[str, str] = {}
+
+
+def alternative(name: str, hidden: dict[str, tuple[float, float]] | None = None, before: str | None = None,
+                ) -> Callable[[AltEffect], AltEffect]:
+    """Register `function` as the other implementation of effect `name` (hidden ranges for a catalogue effect,
+    `before` for a withheld one)."""
+    def register(function: AltEffect) -> AltEffect:
+        if name in ALTERNATIVES:
+            raise ConfigError(f"validation: two alternative implementations of {name}")
+        ALTERNATIVES[name] = function
+        if hidden is not None:
+            HIDDEN_RANGES[name] = hidden
+        if before is not None:
+            WITHHELD_BEFORE[name] = before
+        return function
+    return register
 
 
 def draw_hidden(name: str, rng: np.random.Generator) -> dict[str, float]:
@@ -127,6 +134,7 @@ def _convolve_rows(power: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
 # --- alternative implementations of the catalogue ------------------------------------------------------------------
 
+@alternative("speckle", {"shape_nu": (1.0, 20.0), "grain_beams": (0.6, 2.0), "grain_ranges": (0.4, 1.5)})
 def alt_speckle(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     per_cell = 4.0
     r, b = x.shape
@@ -151,6 +159,8 @@ def _sinc_kernel(width: float) -> np.ndarray:
     return np.sinc(np.arange(-half, half + 1) / width).astype(np.float32)
 
 
+@alternative("beam_sidelobes", {"mainlobe_deg": (0.8, 2.5), "sidelobe_db": (-25.0, -13.0),
+    "crosstalk_db": (-35.0, -22.0)})
 def alt_beam_sidelobes(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     elements = 48
     weights = _taper(elements, p["sidelobe_db"]).astype(np.complex128)
@@ -171,6 +181,7 @@ def alt_beam_sidelobes(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng:
     return np.sqrt(_convolve_rows(x * x, kernel))
 
 
+@alternative("range_blur", {"resolution_m": (0.06, 0.2), "sidelobe_db": (-30.0, -15.0)})
 def alt_range_blur(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     # matched-filter output of a pulse with a tapered spectrum: the range PSF is |FT(spectral taper)|^2
     bin_m = frame.range_resolution_m
@@ -181,6 +192,8 @@ def alt_range_blur(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.
     return np.sqrt(_convolve_rows((x * x).T, kernel)).T
 
 
+@alternative("tvg_noise", {"noise_amplitude": (0.08, 0.3), "tvg_log_coeff_db": (20.0, 40.0),
+    "absorption_db_per_m": (0.2, 1.0), "residual_ramp_db": (-6.0, 6.0)})
 def alt_tvg_noise(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     r = np.maximum(frame.ranges_m, 1e-3)[:, None]
     loss_db = p["tvg_log_coeff_db"] * np.log10(r) + 2 * p["absorption_db_per_m"] * r
@@ -194,6 +207,7 @@ def alt_tvg_noise(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.r
     return (np.abs(received + noise) * 10 ** (loss_db / 20) * ramp).astype(np.float32)
 
 
+@alternative("elevation_spread", {"beamwidth_deg": (8.0, 16.0), "floor_db": (-30.0, -15.0)})
 def alt_elevation_spread(x: np.ndarray, frame: SonarImage, p: dict[str, Any],
                          rng: np.random.Generator) -> np.ndarray:
     altitude = float(frame.meta.get("sonar_altitude_m", 2.0))
@@ -203,6 +217,7 @@ def alt_elevation_spread(x: np.ndarray, frame: SonarImage, p: dict[str, Any],
     return (x * np.maximum(weight, 10 ** (p["floor_db"] / 20))).astype(np.float32)
 
 
+@alternative("multipath", {"reflection_coeff": (0.4, 0.7), "ghost_offset_m": (1.0, 4.0)})
 def alt_multipath(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     r = frame.ranges_m
     mid = float(np.median(r))
@@ -227,6 +242,7 @@ def alt_multipath(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.r
     return np.sqrt(out).astype(np.float32)
 
 
+@alternative("motion_blur", {"yaw_rate_deg_s": (20.0, 50.0), "surge_m_s": (0.5, 1.5), "integration_s": (0.08, 0.2)})
 def alt_motion_blur(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     yaw = math.radians(p["yaw_rate_deg_s"])
     beam_step = float(np.median(np.diff(frame.azimuths_rad)))
@@ -242,6 +258,7 @@ def alt_motion_blur(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np
     return np.sqrt(np.maximum(total / len(times), 0.0))
 
 
+@alternative("ring_down", {"amplitude": (0.3, 0.8), "decay_m": (0.1, 0.4), "beam_ripple": (0.1, 0.4)})
 def alt_ring_down(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     r = frame.ranges_m - frame.ranges_m[0]
     envelope = p["amplitude"] * np.exp(-r / p["decay_m"]) * (0.8 + 0.2 * np.cos(2 * math.pi * r / (0.4 * p["decay_m"])))
@@ -253,6 +270,23 @@ def alt_ring_down(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.r
     return np.abs(x + ring * np.exp(1j * phase)).astype(np.float32)
 
 
+@alternative("water_column", {"haze_level": (0.05, 0.2), "stripe_contrast": (0.2, 0.6),
+                              "stripe_width_beams": (1.0, 4.0)})
+def alt_water_column(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
+    """Haze as many weak discrete scatterers per cell (Rayleigh by sum, not by a Gaussian draw); stripes as a
+    random walk of per-beam gain in dB, smoothed by a box."""
+    per_cell = 6
+    phases = rng.uniform(0, 2 * np.pi, (per_cell,) + x.shape)
+    haze = np.abs(np.exp(1j * phases).sum(axis=0)) * (p["haze_level"] / math.sqrt(per_cell))
+    width = max(1, int(round(2 * p["stripe_width_beams"])))
+    steps = rng.standard_normal(x.shape[1] + width)
+    gain_db = np.convolve(steps, np.ones(width) / math.sqrt(width), mode="valid")[: x.shape[1]]
+    gain = np.exp(p["stripe_contrast"] * gain_db)
+    return (np.sqrt(x * x + haze * haze) * gain[None, :]).astype(np.float32)
+
+
+@alternative("interference", {"rate_per_ping": (1.0, 2.5), "amplitude": (0.4, 0.9), "floor_db": (-20.0, -8.0),
+    "thickness_m": (0.03, 0.12)})
 def alt_interference(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     r = frame.ranges_m
     span = r[-1] - r[0]
@@ -270,6 +304,7 @@ def alt_interference(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: n
     return np.sqrt(out).astype(np.float32)
 
 
+@alternative("gamma_quantization", {"gain": (0.8, 2.0), "gamma": (0.4, 0.7)})
 def alt_gamma_quantization(x: np.ndarray, frame: SonarImage, p: dict[str, Any],
                            rng: np.random.Generator) -> np.ndarray:
     adc = np.floor(np.clip(p["gain"] * x, 0.0, 1.0) * 4095 + rng.random(x.shape)) / 4095  # 12-bit ADC, dithered
@@ -278,15 +313,7 @@ def alt_gamma_quantization(x: np.ndarray, frame: SonarImage, p: dict[str, Any],
 
 # --- effects the catalogue does not have ------------------------------------------------------------------------
 
-def beam_gain_ripple(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
-    """Fixed per-beam gain: the fan edges darkened (vignetting) and a ripple across the beams."""
-    theta = frame.azimuths_rad
-    u = (theta - theta[0]) / max(theta[-1] - theta[0], 1e-9)
-    gain = np.cos(theta / 2) ** p.get("vignetting_power", 6.0) * (1 + p.get("ripple", 0.25) *
-                                                                   np.sin(2 * math.pi * 5 * u + 0.7))
-    return (x * gain[None, :]).astype(np.float32)
-
-
+@alternative("lens_reflection", before="tvg_noise")
 def lens_reflection(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
     """A bright band at a fixed range (a reflection inside the lens housing) across every beam."""
     r = frame.ranges_m
@@ -296,16 +323,26 @@ def lens_reflection(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np
     return np.sqrt(x * x + (band ** 2)[:, None]).astype(np.float32)
 
 
-ALTERNATIVES: dict[str, AltEffect] = {
-    "speckle": alt_speckle, "beam_sidelobes": alt_beam_sidelobes, "range_blur": alt_range_blur,
-    "tvg_noise": alt_tvg_noise, "elevation_spread": alt_elevation_spread, "multipath": alt_multipath,
-    "motion_blur": alt_motion_blur, "ring_down": alt_ring_down, "interference": alt_interference,
-    "gamma_quantization": alt_gamma_quantization, "beam_gain_ripple": beam_gain_ripple,
-    "lens_reflection": lens_reflection,
-}
-# Withheld effects sit where they happen physically: lens reflection before the receiver, beam gain in it.
-_ORDER = [*PIPELINE_ORDER[:PIPELINE_ORDER.index("tvg_noise")], "lens_reflection", "beam_gain_ripple",
-          *PIPELINE_ORDER[PIPELINE_ORDER.index("tvg_noise"):]]
+@alternative("beam_gain_ripple", before="tvg_noise")
+def beam_gain_ripple(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.random.Generator) -> np.ndarray:
+    """Fixed per-beam gain: the fan edges darkened (vignetting) and a ripple across the beams."""
+    theta = frame.azimuths_rad
+    u = (theta - theta[0]) / max(theta[-1] - theta[0], 1e-9)
+    gain = np.cos(theta / 2) ** p.get("vignetting_power", 6.0) * (1 + p.get("ripple", 0.25) *
+                                                                   np.sin(2 * math.pi * 5 * u + 0.7))
+    return (x * gain[None, :]).astype(np.float32)
+
+
+WITHHELD: tuple[str, ...] = tuple(WITHHELD_BEFORE)
+
+
+def _chain_order() -> list[str]:
+    """The registry's PIPELINE_ORDER with each withheld effect where it happens physically (lens reflection before
+    the receiver, beam gain in it)."""
+    order: list[str] = []
+    for name in PIPELINE_ORDER:
+        order += [w for w, before in WITHHELD_BEFORE.items() if before == name] + [name]
+    return order
 
 
 def make_real(frames: Sequence[SonarImage], hidden: dict[str, dict[str, Any]], seed: int) -> list[SonarImage]:
@@ -321,7 +358,7 @@ def make_real(frames: Sequence[SonarImage], hidden: dict[str, dict[str, Any]], s
         results = []
         for plane in planes:
             x = plane.astype(np.float32)
-            for name in (n for n in _ORDER if n in hidden):
+            for name in (n for n in _chain_order() if n in hidden):
                 x = ALTERNATIVES[name](x, frame, hidden[name], rng)
             results.append(x)
         stacked = np.stack(results) if frame.intensity.ndim == 3 else results[0]
@@ -384,6 +421,11 @@ def blind_run(sim: Sequence[SonarImage], real_source: Sequence[SonarImage], hidd
 
 def check_catalogue_defaults() -> None:
     """Every catalogue effect has an alternative implementation and hidden ranges inside its bounds."""
+    missing = sorted(set(EFFECTS) - set(HIDDEN_RANGES))
+    extra = sorted(set(HIDDEN_RANGES) - set(EFFECTS))
+    if missing or extra:
+        raise ConfigError(f"validation: catalogue effects without an alternative: {missing}; alternatives of effects "
+                          f"not in the catalogue: {extra}")
     for name, ranges in HIDDEN_RANGES.items():
         bounds = EFFECTS[name].PARAM_BOUNDS
         for key, (lo, hi) in ranges.items():

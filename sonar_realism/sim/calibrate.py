@@ -1,164 +1,228 @@
-"""Fit the full-effect simulator's default parameters to real Oculus frames, and show the match before and after.
+"""`sonar-realism calibrate`: fit the simulator to one sensor in one setting from its recording alone.
 
-    python -m sonar_realism.sim.calibrate --real "$SONAR_REALISM_DATA"/real/oculus_polar_seabed/dataset --out docs/img
+    sonar-realism calibrate --real PATH --out CALIB.json [--report REPORT.html] [--match TEXT]
 
-The real frames are 8-bit polar images rescaled per frame so that the maximum is 255; simulated frames go through
-the same rescale before they are compared. Four targets, each one number or a short vector:
+PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the ARIS Cartesian fan set). In order:
 
-- intensity histogram (Wasserstein-1 distance between the grey-level distributions);
-- speckle grain: autocorrelation of the detrended image at lags 1-3 across beams and along range;
-- range profile: row mean against normalised range (TVG, seabed band) and the row 10th percentile (noise floor);
-- near-field band: mean of the first 2 % of rows (ring-down) and of the next 2-8 % (the dark zone behind it).
-
-The fit is a pattern search over the effects' PARAM_BOUNDS with common random numbers (fixed frames, fixed seeds),
-so the loss is a deterministic function of the parameters.
+1. the grid: beams, bearing span, range window and bins, per frame (the grids seen and their shares); a PNG
+   export without a bearing table or range window gets a documented default span / bin size, said in `notes`;
+2. the mounting: per frame, the height and tilt that put a flat seabed's first return (the lower edge of the
+   vertical aperture) where the frame's seabed onset is, across the fan (its curvature gives the tilt); the
+   median is the mounting, the spread the heave/pitch; then the height is corrected so the simulated onset
+   lands on the real one (the same detector on both);
+3. the seabed: patch contrast, correlation length and dark share of the mean level, matched by simulation;
+   targets: how often a long shadow shows, its width (the target's size) and where it starts;
+4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
+   the calibrated setting (fingerprint in sim/fingerprint.py), then a residual range/bearing gain;
+5. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
+   short local search from the fit), 5th-95th percentiles.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
-from sonar_realism import plots
 from sonar_realism.errors import ConfigError
-from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, make_effect
+from sonar_realism.frames import SonarImage, uniform_ranges
+from sonar_realism.sim import measure
+from sonar_realism.sim.calibrated import (
+    SeabedLook,
+    calibrated_view,
+    finish,
+    simulate_calibrated,
+    target_pixels,
+)
+from sonar_realism.sim.calibration import (
+    CALIBRATION_VERSION,
+    Calibration,
+    Estimate,
+    FittedParameter,
+    Grid,
+    GridMode,
+    Mounting,
+    SeabedTerms,
+    TargetTerms,
+    save_calibration,
+)
+from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, calibrated_parameters
+from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, per_frame_rescaled, resample_profile
+from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
 
-PROFILE_BINS = 48
-HIST_BINS = 64
-MAX_LAG = 3
-DETREND_BOX = 9
+MIN_FRAMES = 8
+MAX_GRID_MODES = 24
+GAIN_KNOTS = 8
+# Beam counts further apart than this ratio are different sensors (or modes) that need their own calibration.
+MIXED_BEAMS_RATIO = 1.25
 
-# (effect, parameter, log-scale search) fitted by the calibration; others keep their physical defaults.
-FITTED: tuple[tuple[str, str, bool], ...] = (
-    ("speckle", "shape_nu", True), ("speckle", "grain_beams", False), ("speckle", "grain_ranges", False),
-    ("beam_sidelobes", "sidelobe_db", False), ("range_blur", "resolution_m", True),
-    ("range_blur", "sidelobe_db", False),
-    ("tvg_noise", "noise_amplitude", False), ("tvg_noise", "tvg_log_coeff_db", False),
-    ("tvg_noise", "residual_ramp_db", False), ("elevation_spread", "beamwidth_deg", False),
-    ("ring_down", "amplitude", False), ("ring_down", "decay_m", True), ("gamma_quantization", "gamma", False))
+# (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
+FITTED: tuple[tuple[str, str, bool], ...] = calibrated_parameters()
 
 
 @dataclass(frozen=True)
-class Fingerprint:
-    """The calibration targets of a set of frames (all in 8-bit units / 255)."""
+class CalibrateConfig:
+    """Assumptions (used only where the recording does not say) and the effort of the fit."""
 
-    histogram: np.ndarray  # [HIST_BINS] density over [0, 1]
-    acf_beams: np.ndarray  # [MAX_LAG]
-    acf_ranges: np.ndarray  # [MAX_LAG]
-    row_mean: np.ndarray  # [PROFILE_BINS]
-    row_floor: np.ndarray  # [PROFILE_BINS]
-    near_band: float
-    dark_zone: float
+    vertical_fov_deg: float = 20.0  # Oculus M1200d/M3000d class; ARIS 3000: 14
+    default_fov_deg: float = 130.0  # bearing span when the recording has no bearing table
+    default_range_bin_m: float = 0.02  # range bin when the recording has no range window
+    sim_frames: int = 8
+    rounds: int = 3
+    bootstrap: int = 200
+    effect_bootstrap: int = 4
+    seed: int = 0
 
-    def as_dict(self) -> dict[str, Any]:
-        return {k: (v.round(4).tolist() if isinstance(v, np.ndarray) else round(v, 4))
-                for k, v in dataclasses.asdict(self).items()}
-
-
-def per_frame_rescaled(image: np.ndarray) -> np.ndarray:
-    """What the real set's export did: raw * 255 / raw.max(), as float in [0, 1]."""
-    image = image.astype(np.float32)
-    peak = float(image.max())
-    return image / peak if peak > 0 else image
+    def validate(self) -> None:
+        if not 0.5 <= self.vertical_fov_deg <= 90 or not 1 <= self.default_fov_deg <= 179:
+            raise ConfigError("calibrate: vertical_fov_deg must be in 0.5..90 and default_fov_deg in 1..179")
+        if not 1e-4 <= self.default_range_bin_m <= 1.0:
+            raise ConfigError(f"calibrate: default_range_bin_m {self.default_range_bin_m} outside 1e-4..1 m")
+        if self.sim_frames < 2 or self.rounds < 1 or self.bootstrap < 2 or self.effect_bootstrap < 0:
+            raise ConfigError("calibrate: need sim_frames >= 2, rounds >= 1, bootstrap >= 2, effect_bootstrap >= 0")
 
 
-def _resample(profile: np.ndarray, bins: int) -> np.ndarray:
-    x = (np.arange(profile.size) + 0.5) / profile.size
-    return np.interp((np.arange(bins) + 0.5) / bins, x, profile)
+@dataclass(frozen=True)
+class CalibrationResult:
+    calibration: Calibration
+    real_images: list[np.ndarray]  # the recording, per-frame max scaled
+    examples: dict[str, list[np.ndarray]]  # a few frames of each stage: uncalibrated, calibrated
+    fingerprints: dict[str, Fingerprint]  # real and each stage
 
 
-def _acf(detrended: np.ndarray, weight: np.ndarray, axis: int) -> np.ndarray:
-    out = np.empty(MAX_LAG)
-    var = float((detrended * detrended * weight).sum()) + 1e-12
-    n = detrended.shape[axis]
-    for lag in range(1, MAX_LAG + 1):
-        a = detrended.take(np.arange(n - lag), axis=axis)
-        b = detrended.take(np.arange(lag, n), axis=axis)
-        w = weight.take(np.arange(n - lag), axis=axis) * weight.take(np.arange(lag, n), axis=axis)
-        out[lag - 1] = float((a * b * w).sum()) / var
+# ----------------------------------------------------------------------------------------------- the recording
+
+
+def prepare_frames(frames: Sequence[SonarImage], config: CalibrateConfig) -> tuple[list[SonarImage], list[str]]:
+    """Check the recording is fit to calibrate and give every frame a metric grid; notes say what was assumed."""
+    if len(frames) < MIN_FRAMES:
+        raise ConfigError(f"calibrate: {len(frames)} frame(s); a calibration needs at least {MIN_FRAMES} frames of "
+                          "one sensor (more give tighter intervals)")
+    beams = sorted({f.n_beams for f in frames})
+    if beams[-1] > MIXED_BEAMS_RATIO * beams[0]:
+        raise ConfigError(f"calibrate: frames of mixed sensors or modes ({beams[0]} to {beams[-1]} beams) and no way "
+                          "to group them; calibrate each sensor's recording separately (e.g. --match RECORDING)")
+    notes: set[str] = set()
+    out = []
+    for frame in frames:
+        assumed = set(frame.meta.get("assumed_fields", []))
+        ranges, azimuths = frame.ranges_m, frame.azimuths_rad
+        if "ranges_m" in assumed:
+            ranges = uniform_ranges(frame.n_ranges, frame.n_ranges * config.default_range_bin_m)
+            notes.add(f"range window not in the recording: assumed {config.default_range_bin_m * 100:g} cm bins "
+                      "from 0 m (height and sizes scale with this assumption; shapes do not)")
+        if "azimuths_rad" in assumed:
+            azimuths = oculus_bearing_table(frame.n_beams, config.default_fov_deg)
+            notes.add(f"bearing table not in the recording: assumed a {config.default_fov_deg:g} deg fan, beams "
+                      "equally spaced in sin(bearing) (Oculus 1.2 MHz)")
+        out.append(frame.replace(ranges_m=ranges, azimuths_rad=azimuths))
+    notes.add(f"vertical aperture assumed {config.vertical_fov_deg:g} deg (sensor class; not in the recording)")
+    return out, sorted(notes)
+
+
+def grid_of(frames: Sequence[SonarImage]) -> Grid:
+    keys = Counter((f.n_beams, f.n_ranges, round(float(f.ranges_m[0] - 0.5 * _bin(f)), 3),
+                    round(float(f.ranges_m[-1] + 0.5 * _bin(f)), 3), round(math.degrees(f.fov_rad), 2))
+                   for f in frames)
+    common = keys.most_common(MAX_GRID_MODES)
+    total = sum(count for _, count in common)
+    modes = tuple(GridMode(b, r, max(lo, 0.0), hi, fov, count / total) for (b, r, lo, hi, fov), count in common)
+    assumed = frames[0].meta.get("assumed_fields", [])
+    return Grid(modes, "default span (see notes)" if "azimuths_rad" in assumed else "recording",
+                "default bin size (see notes)" if "ranges_m" in assumed else "recording")
+
+
+def _bin(frame: SonarImage) -> float:
+    r = frame.ranges_m
+    return float(r[-1] - r[0]) / max(r.size - 1, 1)
+
+
+def _estimate(values: np.ndarray, statistic: Callable[[np.ndarray], float], rng: np.random.Generator,
+              resamples: int) -> Estimate:
+    values = np.asarray(values, dtype=np.float64)
+    values = values[np.isfinite(values)] if values.ndim == 1 else values
+    if len(values) == 0:
+        raise ConfigError("calibrate: no frame gave this measurement")
+    boot = [statistic(values[rng.integers(0, len(values), len(values))]) for _ in range(resamples)]
+    return Estimate(float(statistic(values)), float(np.percentile(boot, 5)), float(np.percentile(boot, 95)))
+
+
+def _robust_sd(values: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def _fixed(value: float) -> Estimate:
+    return Estimate(value, value, value)
+
+
+# ----------------------------------------------------------------------------------------------- matching by simulation
+
+
+def _sim_images(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int, gain: bool = True,
+                look: SeabedLook | None = None) -> list[np.ndarray]:
+    out = []
+    for index in range(n):
+        clean, _ = calibrated_view(calibration, seed, index, look)
+        frame = finish(calibration, clean, chain, np.random.default_rng([seed, index]), gain=gain)
+        out.append(per_frame_rescaled(frame.intensity))
     return out
 
 
-def fingerprint(images: Sequence[np.ndarray]) -> Fingerprint:
-    """Targets of images already rescaled to [0, 1] (each [n_ranges, n_beams], any n_ranges)."""
-    if not images:
-        raise ConfigError("calibrate: no frames to measure")
-    hist = np.zeros(HIST_BINS)
-    acf_b, acf_r = np.zeros(MAX_LAG), np.zeros(MAX_LAG)
-    means, floors, near, dark = [], [], [], []
-    for image in images:
-        hist += np.histogram(image, bins=HIST_BINS, range=(0.0, 1.0))[0]
-        local = cv2.blur(image, (DETREND_BOX, DETREND_BOX), borderType=cv2.BORDER_REFLECT_101)
-        detrended = image - local
-        # grain is measured where there is signal (seabed, targets): local mean above the frame median
-        weight = (local > np.median(local)).astype(np.float32)
-        acf_b += _acf(detrended, weight, axis=1)
-        acf_r += _acf(detrended, weight, axis=0)
-        means.append(_resample(image.mean(axis=1), PROFILE_BINS))
-        floors.append(_resample(np.percentile(image, 10, axis=1), PROFILE_BINS))
-        rows = image.shape[0]
-        near.append(float(image[: max(1, rows // 50)].mean()))
-        dark.append(float(image[max(1, rows // 50): max(2, rows * 8 // 100)].mean()))
-    n = len(images)
-    return Fingerprint(hist / hist.sum() * HIST_BINS, acf_b / n, acf_r / n, np.mean(means, axis=0),
-                       np.mean(floors, axis=0), float(np.mean(near)), float(np.mean(dark)))
+def _median_onset(images: Sequence[np.ndarray], bins: Sequence[float]) -> float:
+    onsets = [np.nanmedian(rows) * b for image, b in zip(images, bins, strict=True)
+              if np.isfinite(rows := measure.onset_rows(image)).any()]
+    return float(np.median(onsets)) if onsets else math.nan
 
 
-def distance(sim: Fingerprint, real: Fingerprint) -> dict[str, float]:
-    """Per-target mismatch (all O(0.01-0.1) when close) and their sum `total`."""
-    cdf_sim = np.cumsum(sim.histogram) / HIST_BINS
-    cdf_real = np.cumsum(real.histogram) / HIST_BINS
-    parts = {
-        "histogram_w1": float(np.abs(cdf_sim - cdf_real).mean()),
-        "grain_beams": float(np.abs(sim.acf_beams - real.acf_beams).mean()),
-        "grain_ranges": float(np.abs(sim.acf_ranges - real.acf_ranges).mean()),
-        "range_profile": float(np.abs(sim.row_mean - real.row_mean).mean()),
-        "noise_floor": float(np.abs(sim.row_floor - real.row_floor).mean()),
-        "near_band": abs(sim.near_band - real.near_band) + abs(sim.dark_zone - real.dark_zone),
-    }
-    parts["total"] = float(sum(parts.values()))
-    return parts
+def _seabed_summary(images: Sequence[np.ndarray]) -> tuple[float, float, float]:
+    stats = [s for s in (measure.seabed_stats(i) for i in images) if s is not None]
+    if not stats:
+        return math.nan, math.nan, math.nan
+    return (float(np.median([s.contrast for s in stats])), float(np.median([s.scale_rows for s in stats])),
+            float(np.median([s.dark_fraction for s in stats])))
 
 
-def load_real(root: Path, limit: int | None = None) -> list[np.ndarray]:
-    """Real 8-bit polar PNGs under `root` (any depth), as float [0, 1] rescaled per frame like the export."""
-    paths = sorted(p for p in root.rglob("*.png") if p.is_file())
-    if limit:
-        paths = paths[:: max(1, len(paths) // limit)][:limit]
-    images = []
-    for path in paths:
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise ConfigError(f"{path}: not a readable PNG")
-        images.append(per_frame_rescaled(image))
-    if not images:
-        raise ConfigError(f"{root}: no PNG frames found")
-    return images
+def _sim_highlight(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
+    """Median over simulated frames with a target of its return's 95th percentile over the seabed median."""
+    ratios = []
+    index = 0
+    while len(ratios) < n and index < 8 * n:
+        clean, mask = calibrated_view(calibration, seed, index)
+        index += 1
+        if not mask.any():
+            continue
+        image = per_frame_rescaled(finish(calibration, clean, chain, np.random.default_rng([seed, index])).intensity)
+        seabed = float(np.median(image[measure.seabed_rows(image):]))
+        ratios.append(float(np.percentile(image[target_pixels(mask)], 95)) / max(seabed, 1e-6))
+    return float(np.median(ratios)) if ratios else math.nan
 
 
-def render_clean(n_frames: int, seed: int, scene: str = "default") -> list[SonarImage]:
-    return [frame for frame, _ in simulate(scene, "none", n_frames, seed)]
+def _sim_bins(calibration: Calibration, n: int, seed: int) -> list[float]:
+    bins = []
+    for index in range(n):
+        rng = np.random.default_rng([seed, index, 11])
+        modes = calibration.grid.modes
+        mode = modes[int(rng.choice(len(modes), p=np.array([m.weight for m in modes]) / sum(m.weight for m in modes)))]
+        bins.append((mode.max_range_m - mode.min_range_m) / mode.n_ranges)
+    return bins
+
+
+# ----------------------------------------------------------------------------------------------- effect refit
 
 
 def with_effects(clean: Sequence[SonarImage], effects: Sequence[Effect], seed: int) -> list[np.ndarray]:
     """The clean frames through `effects`, rescaled per frame like the real export (same seeds every call)."""
-    out = []
-    for i, frame in enumerate(clean):
-        result = apply_effects(frame, effects, np.random.default_rng([seed, i]))
-        out.append(per_frame_rescaled(result.intensity))
-    return out
+    return [per_frame_rescaled(apply_effects(frame, effects, np.random.default_rng([seed, i])).intensity)
+            for i, frame in enumerate(clean)]
 
 
 def effects_from(values: dict[tuple[str, str], float], base: dict[str, Effect] | None = None) -> list[Effect]:
@@ -169,14 +233,16 @@ def effects_from(values: dict[tuple[str, str], float], base: dict[str, Effect] |
     return [chain[name] for name in PIPELINE_ORDER]
 
 
-def fit(clean: Sequence[SonarImage], target: Fingerprint, seed: int, rounds: int = 6,
-        log: Any = None) -> tuple[list[Effect], float]:
-    """Pattern search over FITTED in normalised coordinates; returns the best chain and its loss."""
+def fit(clean: Sequence[SonarImage], target: Fingerprint, seed: int, rounds: int = 3, log: Any = None,
+        start: Sequence[Effect] | None = None, step: float = 0.25) -> tuple[list[Effect], float]:
+    """Pattern search over FITTED in coordinates normalised to each PARAM_BOUNDS (log where the class says),
+    with common random numbers, from `start` (default: the catalogue defaults); the best chain and its loss."""
     bounds = {(e, p): EFFECTS[e].PARAM_BOUNDS[p] for e, p, _ in FITTED}
     is_log = {(e, p): use_log for e, p, use_log in FITTED}
 
     def to_unit(key: tuple[str, str], value: float) -> float:
         lo, hi = bounds[key]
+        value = min(max(value, lo), hi)
         if is_log[key]:
             return (math.log(value) - math.log(lo)) / (math.log(hi) - math.log(lo))
         return (value - lo) / (hi - lo)
@@ -186,16 +252,14 @@ def fit(clean: Sequence[SonarImage], target: Fingerprint, seed: int, rounds: int
         u = min(max(u, 0.0), 1.0)
         return math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))) if is_log[key] else lo + u * (hi - lo)
 
-    defaults = {name: EFFECTS[name]() for name in PIPELINE_ORDER}
-    point = {key: to_unit(key, min(max(getattr(defaults[key[0]], key[1]), bounds[key][0]), bounds[key][1]))
-             for key in bounds}
+    base = {e.name: e for e in start} if start else {name: EFFECTS[name]() for name in PIPELINE_ORDER}
+    point = {key: to_unit(key, getattr(base[key[0]], key[1])) for key in bounds}
 
     def loss(p: dict[tuple[str, str], float]) -> float:
-        chain = effects_from({k: from_unit(k, u) for k, u in p.items()}, defaults)
+        chain = effects_from({k: from_unit(k, u) for k, u in p.items()}, base)
         return distance(fingerprint(with_effects(clean, chain, seed)), target)["total"]
 
     best = loss(point)
-    step = 0.25
     for round_index in range(rounds):
         for key in bounds:
             trials = []
@@ -209,98 +273,243 @@ def fit(clean: Sequence[SonarImage], target: Fingerprint, seed: int, rounds: int
                 if value < best:
                     best, point = value, trial
         if log:
-            print(f"calibrate: round {round_index + 1}/{rounds}, step {step:.3f}, loss {best:.4f}", file=log)
+            print(f"calibrate: effects round {round_index + 1}/{rounds}, step {step:.3f}, loss {best:.4f}", file=log)
         step /= 2
-    fitted = {k: from_unit(k, u) for k, u in point.items()}
-    return effects_from({k: _round(v) for k, v in fitted.items()}, defaults), best
+    return effects_from({k: _round(from_unit(k, u)) for k, u in point.items()}, base), best
 
 
 def _round(value: float) -> float:
-    """Three significant digits: what gets baked into the defaults."""
-    if value == 0:
-        return 0.0
-    return float(f"{value:.3g}")
+    """Three significant digits: what gets written."""
+    return 0.0 if value == 0 else float(f"{value:.3g}")
 
 
-def write_plots(out: Path, real: Fingerprint, fingerprints: dict[str, Fingerprint],
-                examples: dict[str, list[np.ndarray]]) -> list[Path]:
-    x_hist = (np.arange(HIST_BINS) + 0.5) / HIST_BINS
-    x_prof = (np.arange(PROFILE_BINS) + 0.5) / PROFILE_BINS
-    lags = np.arange(1, MAX_LAG + 1, dtype=float)
-    all_sets = {"real": real, **fingerprints}
-    paths = [
-        plots.line_plot({k: (x_hist, np.log10(f.histogram + 1e-3)) for k, f in all_sets.items()},
-                        out / "sim_calibration_histogram.png", "grey-level histogram (per-frame max = 1)",
-                        "grey level / 255", "log10 density"),
-        plots.line_plot({k: (x_prof, f.row_mean) for k, f in all_sets.items()},
-                        out / "sim_calibration_range_profile.png", "row mean against range", "range / max range",
-                        "mean grey / 255"),
-        plots.line_plot({k: (x_prof, f.row_floor) for k, f in all_sets.items()},
-                        out / "sim_calibration_noise_floor.png", "row 10th percentile (noise floor) against range",
-                        "range / max range", "grey / 255"),
-        plots.line_plot({**{f"{k} beams": (lags, f.acf_beams) for k, f in all_sets.items()},
-                         **{f"{k} ranges": (lags, f.acf_ranges) for k, f in all_sets.items()}},
-                        out / "sim_calibration_grain.png", "speckle grain: autocorrelation of detrended image",
-                        "lag (pixels)", "correlation"),
-    ]
-    grid, labels = [], []
-    for name, images in examples.items():
-        for image in images:
-            grid.append(cv2.resize((image * 255).astype(np.uint8), (192, 288), interpolation=cv2.INTER_AREA))
-            labels.append(name)
-    paths.append(plots.image_grid(grid, out / "sim_calibration_examples.png", ncols=len(grid) // len(examples),
-                                  labels=labels))
-    return paths
+def _gain_update(real: Fingerprint, sim: Fingerprint, gamma: float, knots: int, axis: str) -> np.ndarray:
+    """Amplitude dB that moves the simulated mean profile onto the real one (output ~ amplitude^gamma)."""
+    r, s = (real.row_mean, sim.row_mean) if axis == "range" else (real.column_mean, sim.column_mean)
+    ratio_db = 20 * np.log10(np.maximum(r, 1e-3) / np.maximum(s, 1e-3)) / max(gamma, 0.1)
+    return np.clip(resample_profile(ratio_db, knots), -12.0, 12.0)
 
 
-def markdown_table(rows: dict[str, dict[str, float]]) -> str:
-    keys = list(next(iter(rows.values())))
-    lines = ["| set | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
-    for name, parts in rows.items():
-        lines.append(f"| {name} | " + " | ".join(f"{parts[k]:.4f}" for k in keys) + " |")
-    return "\n".join(lines)
+# ----------------------------------------------------------------------------------------------- the whole fit
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sonar_realism.sim.calibrate", description=__doc__.splitlines()[0])
-    parser.add_argument("--real", required=True, help="folder of real 8-bit polar PNGs (searched recursively)")
-    parser.add_argument("--out", required=True, help="folder for the plots (docs/img)")
-    parser.add_argument("--frames", type=int, default=8, help="simulated frames used in the fit (default 8)")
-    parser.add_argument("--rounds", type=int, default=6, help="pattern-search rounds (default 6)")
+def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig = CalibrateConfig(),
+              log: Any = None) -> CalibrationResult:
+    """Everything `sonar-realism calibrate` writes, from the recording alone."""
+    config.validate()
+    frames, notes = prepare_frames(frames, config)
+    say = (lambda text: print(f"calibrate: {text}", file=log)) if log else (lambda text: None)
+    rng = np.random.default_rng(config.seed)
+    images = [per_frame_rescaled(f.intensity) for f in frames]
+    target = fingerprint(images)
+    grid = grid_of(frames)
+    say(f"{len(frames)} frames, {len(grid.modes)} grid(s); most common {grid.modes[0]}")
+
+    # mounting from the onset across the fan, per frame
+    geometry = [measure.frame_geometry(i, f.ranges_m, f.azimuths_rad, config.vertical_fov_deg)
+                for i, f in zip(images, frames, strict=True)]
+    seen = np.array([(g.height_m, g.tilt_deg, g.onset_m) for g in geometry if g is not None])
+    if len(seen) < max(3, len(frames) // 4):
+        raise ConfigError(f"calibrate: only {len(seen)} of {len(frames)} frames show a seabed onset below a water "
+                          "column; the mounting cannot be measured from this recording")
+    b = config.bootstrap
+    height = _estimate(seen[:, 0], np.median, rng, b)
+    tilt = _estimate(seen[:, 1], np.median, rng, b)
+    mounting = Mounting(height, tilt, _estimate(seen[:, 0], _robust_sd, rng, b),
+                        _estimate(seen[:, 1], _robust_sd, rng, b), config.vertical_fov_deg)
+    real_onset = float(np.median(seen[:, 2]))
+
+    # seabed patchiness and targets, measured on the recording
+    real_contrast, real_scale_rows, real_dark = _seabed_summary(images)
+    shadows = [measure.target_shadow(i) for i in images]
+    present = np.array([s is not None for s in shadows], dtype=float)
+    sizes, where, highlights = [], [], []
+    for frame, image, shadow in zip(frames, images, shadows, strict=True):
+        if shadow is None:
+            continue
+        highlights.append(measure.highlight_ratio(image, slice(shadow.first_beam, shadow.first_beam
+                                                               + shadow.width_beams), shadow.start_row))
+        beam_step = frame.fov_rad / max(frame.n_beams - 1, 1)
+        start_m = float(frame.ranges_m[min(shadow.start_row, frame.n_ranges - 1)])
+        sizes.append(shadow.width_beams * beam_step * start_m)
+        where.append(start_m / float(frame.ranges_m[-1]))
+    targets = TargetTerms(_estimate(present, np.mean, rng, b),
+                          _estimate(np.array(sizes), np.median, rng, b) if sizes else _fixed(0.5),
+                          _estimate(np.array(where), np.median, rng, b) if where else _fixed(0.5),
+                          _estimate(np.array(highlights), np.median, rng, b) if highlights else _fixed(2.0), 1.0)
+    mean_bin = float(np.median([_bin(f) for f in frames]))
+    look = SeabedLook(patch_contrast=min(2.5, real_contrast / 0.6), patch_scale_m=real_scale_rows * mean_bin,
+                      dark_fraction=min(0.8, real_dark), roughness_m=0.01)
+    seabed = SeabedTerms(_fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.dark_fraction),
+                         _fixed(look.roughness_m))
+    defaults = [EFFECTS[name]() for name in PIPELINE_ORDER]
+    calibration = Calibration(
+        CALIBRATION_VERSION, source, len(frames), grid, mounting, seabed, targets,
+        {e.name: e.params() for e in defaults}, (), (0.0,) * GAIN_KNOTS, (0.0,) * GAIN_KNOTS, {},
+        export_rescaled=_export_rescaled(frames), notes=tuple(notes))
+    n, seed = config.sim_frames, config.seed
+    bins = _sim_bins(calibration, n, seed)
+
+    # height: the simulated onset on the real one (same detector); seabed look: matched statistics
+    for _ in range(2):
+        sim_onset = _median_onset(_sim_images(calibration, defaults, n, seed, gain=False), bins)
+        if math.isfinite(sim_onset) and sim_onset > 0:
+            scale = real_onset / sim_onset
+            mounting = dataclasses.replace(mounting, height_m=Estimate(*(v * scale for v in (
+                mounting.height_m.value, mounting.height_m.low, mounting.height_m.high))))
+            calibration = dataclasses.replace(calibration, mounting=mounting)
+    say(f"mounting: height {mounting.height_m.value:.2f} m, tilt {mounting.tilt_deg.value:.1f} deg")
+    # seabed look matched under the current effects, then the effects refitted on top; twice, as they interact
+    chain = defaults
+    for rounds, step in ((config.rounds, 0.25), (1, 0.06)):
+        for _ in range(3):
+            contrast, scale_rows, dark = _seabed_summary(_sim_images(calibration, chain, n, seed, gain=False,
+                                                                     look=look))
+            if not math.isfinite(contrast):
+                break
+            look = SeabedLook(float(np.clip(look.patch_contrast * real_contrast / max(contrast, 1e-3), 0.0, 2.5)),
+                              float(np.clip(look.patch_scale_m * real_scale_rows / max(scale_rows, 0.5), 0.05, 20.0)),
+                              float(np.clip(look.dark_fraction + (real_dark - dark), 0.0, 0.8)), look.roughness_m)
+        calibration = dataclasses.replace(calibration, seabed=SeabedTerms(
+            _fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.dark_fraction),
+            _fixed(look.roughness_m)))
+        say(f"seabed: contrast {look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, "
+            f"dark {look.dark_fraction:.2f}")
+        clean = [calibrated_view(calibration, seed, i)[0] for i in range(n)]
+        chain, _ = fit(clean, target, seed, rounds, log=log, start=chain, step=step)
+        calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
+    gamma = float(calibration.effects["gamma_quantization"]["gamma"])
+    for _ in range(2):
+        sim_highlight = _sim_highlight(calibration, chain, n, seed)
+        if math.isfinite(sim_highlight) and sim_highlight > 0:
+            gain = calibration.targets.highlight_gain * (targets.highlight.value / sim_highlight) ** (1 / gamma)
+            calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
+                calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
+    say(f"targets: {calibration.targets}")
+    for _ in range(2):
+        sim_fp = fingerprint(_sim_images(calibration, chain, n, seed))
+        range_db = np.clip(np.array(calibration.range_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS,
+                                                                              "range"), -12, 12)
+        bearing_db = np.array(calibration.bearing_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS, "bearing")
+        bearing_db = np.clip(bearing_db - bearing_db.mean(), -12, 12)
+        calibration = dataclasses.replace(calibration, range_gain_db=tuple(round(float(v), 2) for v in range_db),
+                                          bearing_gain_db=tuple(round(float(v), 2) for v in bearing_db))
+
+    # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
+    fitted = _effect_intervals(clean, chain, images, config, rng, log)
+    seabed_intervals = _seabed_intervals(images, look, real_contrast, real_scale_rows, real_dark, rng, b)
+    calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
+
+    # before / after
+    uncalibrated = [per_frame_rescaled(f.intensity) for f, _ in simulate("default", "all", n, seed)]
+    geometry_only = _sim_images(calibration, defaults, n, seed, gain=False)
+    final = [per_frame_rescaled(f.intensity) for f, _ in simulate_calibrated(calibration, n, seed)]
+    fingerprints = {"real": target, "uncalibrated sim": fingerprint(uncalibrated),
+                    "geometry + default effects": fingerprint(geometry_only), "calibrated sim": fingerprint(final)}
+    distances = {name: round(distance(fp, target)["total"], 4) for name, fp in fingerprints.items() if name != "real"}
+    calibration = dataclasses.replace(calibration, distances=distances)
+    calibration.validate()
+    say(f"fingerprint distance: {distances}")
+    examples = {"uncalibrated sim": uncalibrated[:4], "calibrated sim": final[:4]}
+    return CalibrationResult(calibration, images, examples, fingerprints)
+
+
+def _export_rescaled(frames: Sequence[SonarImage]) -> bool:
+    return all(f.intensity.dtype == np.uint8 and int(f.intensity.max()) == 255 for f in frames)
+
+
+def _effect_intervals(clean: Sequence[SonarImage], chain: list[Effect], images: list[np.ndarray],
+                      config: CalibrateConfig, rng: np.random.Generator, log: Any) -> tuple[FittedParameter, ...]:
+    values: dict[tuple[str, str], list[float]] = {(e, p): [] for e, p, _ in FITTED}
+    for _ in range(config.effect_bootstrap):
+        resample = [images[i] for i in rng.integers(0, len(images), len(images))]
+        refit, _ = fit(clean, fingerprint(resample), config.seed, rounds=1, start=chain, step=0.06)
+        by_name = {e.name: e for e in refit}
+        for e, p in values:
+            values[(e, p)].append(float(getattr(by_name[e], p)))
+    by_name = {e.name: e for e in chain}
+    out = []
+    for (e, p), draws in values.items():
+        value = float(getattr(by_name[e], p))
+        low, high = (min(np.percentile(draws, 5), value), max(np.percentile(draws, 95), value)) if draws else (value,
+                                                                                                             value)
+        out.append(FittedParameter(e, p, Estimate(value, float(low), float(high))))
+    if log:
+        print(f"calibrate: effect intervals from {config.effect_bootstrap} bootstrap refits", file=log)
+    return tuple(out)
+
+
+def _seabed_intervals(images: list[np.ndarray], look: SeabedLook, contrast: float, scale_rows: float, dark: float,
+                      rng: np.random.Generator, resamples: int) -> SeabedTerms:
+    """The matched seabed terms scale with the recording's statistics: their intervals are the statistics'
+    bootstrap intervals carried through that proportion."""
+    stats = np.array([(s.contrast, s.scale_rows, s.dark_fraction) for s in
+                      (measure.seabed_stats(i) for i in images) if s is not None])
+
+    def carried(column: int, value: float, reference: float, additive: bool = False) -> Estimate:
+        e = _estimate(stats[:, column], np.median, rng, resamples)
+        if additive:
+            return Estimate(value, max(0.0, value + e.low - reference), min(0.9, value + e.high - reference))
+        ratio = value / max(reference, 1e-9)
+        return Estimate(value, e.low * ratio, e.high * ratio)
+
+    return SeabedTerms(carried(0, look.patch_contrast, contrast), carried(1, look.patch_scale_m, scale_rows),
+                       carried(2, look.dark_fraction, dark, additive=True), _fixed(look.roughness_m))
+
+
+# ----------------------------------------------------------------------------------------------- CLI
+
+
+def load_recording(path: str | Path, match: str | None = None, limit: int | None = None) -> list[SonarImage]:
+    """Frames of `path` (anything read_frames reads); `match` keeps frames whose source name contains it."""
+    from sonar_realism.io import read_frames
+
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"--real {path}: no such file or folder")
+    frames = list(read_frames(path))
+    if not frames and path.is_dir():  # a data set split into folders (train/images, val/images): read each
+        folders = sorted(p for p in path.rglob("*") if p.is_dir())
+        frames = sorted((f for folder in folders for f in read_frames(folder)),
+                        key=lambda f: str(f.meta.get("source", "")))
+    frames = [f for f in frames if match is None or match in str(f.meta.get("source", ""))]
+    if limit and len(frames) > limit:
+        frames = frames[:: max(1, len(frames) // limit)][:limit]
+    return frames
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--real", required=True, help="the recording: any file or folder read_frames reads")
+    parser.add_argument("--out", required=True, help="the calibration file to write (CALIB.json)")
+    parser.add_argument("--report", help="HTML report to write (default: beside --out, .html)")
+    parser.add_argument("--match", help="only frames whose source name contains this (e.g. one recording's name)")
+    parser.add_argument("--limit", type=int, help="use at most this many frames, evenly spaced")
+    parser.add_argument("--vertical-fov", type=float, default=CalibrateConfig.vertical_fov_deg,
+                        help="vertical aperture in degrees (not in recordings; default 20, Oculus; ARIS 3000: 14)")
+    parser.add_argument("--fov", type=float, default=CalibrateConfig.default_fov_deg,
+                        help="bearing span when the recording has no bearing table (default 130)")
+    parser.add_argument("--range-bin", type=float, default=CalibrateConfig.default_range_bin_m,
+                        help="range bin (m) when the recording has no range window (default 0.02)")
+    parser.add_argument("--sim-frames", type=int, default=CalibrateConfig.sim_frames)
+    parser.add_argument("--rounds", type=int, default=CalibrateConfig.rounds, help="effect pattern-search rounds")
+    parser.add_argument("--effect-bootstrap", type=int, default=CalibrateConfig.effect_bootstrap,
+                        help="bootstrap refits for the effect-parameter intervals (default 4; 0: none)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", help="also write the result (fitted parameters, distances) to this JSON file")
-    args = parser.parse_args(argv)
 
-    real_images = load_real(Path(args.real))
-    target = fingerprint(real_images)
-    clean = render_clean(args.frames, args.seed)
-    defaults = [make_effect(name) for name in PIPELINE_ORDER]
-    raw_fp = fingerprint([per_frame_rescaled(f.intensity) for f in clean])
-    before_fp = fingerprint(with_effects(clean, defaults, args.seed))
-    fitted, _ = fit(clean, target, args.seed, args.rounds, log=sys.stderr)
-    after_fp = fingerprint(with_effects(clean, fitted, args.seed))
-    rows = {"raw sim": distance(raw_fp, target), "all effects, defaults": distance(before_fp, target),
-            "all effects, fitted": distance(after_fp, target)}
 
+def run(args: argparse.Namespace) -> int:
+    from sonar_realism.sim.calibration_report import write_report
+
+    config = CalibrateConfig(vertical_fov_deg=args.vertical_fov, default_fov_deg=args.fov,
+                             default_range_bin_m=args.range_bin, sim_frames=args.sim_frames, rounds=args.rounds,
+                             effect_bootstrap=args.effect_bootstrap, seed=args.seed)
+    frames = load_recording(args.real, args.match, args.limit)
+    source = Path(args.real).name + (f" [{args.match}]" if args.match else "")
+    result = calibrate(frames, source, config, log=sys.stderr)
     out = Path(args.out)
-    # real frames are never drawn into the output: the real set may not be redistributed (see its README)
-    examples = {"raw sim": [per_frame_rescaled(f.intensity) for f in clean[:3]],
-                "defaults": with_effects(clean[:3], defaults, args.seed),
-                "fitted": with_effects(clean[:3], fitted, args.seed)}
-    written = write_plots(out, target, {"raw sim": raw_fp, "defaults": before_fp, "fitted": after_fp}, examples)
-
-    changed = {e.name: {k: v for k, v in e.params().items() if v != EFFECTS[e.name]().params()[k]} for e in fitted}
-    result = {"real_frames": len(real_images), "sim_frames": len(clean), "distances": rows,
-              "fitted_params": {e.name: e.params() for e in fitted},
-              "changed_from_defaults": {k: v for k, v in changed.items() if v},
-              "real_fingerprint": target.as_dict(), "fitted_fingerprint": after_fp.as_dict(),
-              "plots": [str(p) for p in written]}
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
-    print(markdown_table(rows))
-    print(json.dumps({"changed_from_defaults": result["changed_from_defaults"]}, indent=1))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_calibration(result.calibration, out)
+    report = Path(args.report) if args.report else out.with_suffix(".html")
+    write_report(result, report)
+    print(f"wrote {out} and {report}", file=sys.stderr)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -2,6 +2,11 @@
 
     sonar-realism simulate --effects none|all|speckle,tvg_noise,... --n N --out DIR [--scene NAME] [--seed S]
                            [--param effect.name=value ...] [--beams B] [--ranges R] [--range-m M]
+    sonar-realism simulate --calibration CALIB.json --n N --seed S --out DIR [--scene NAME] [--param ...]
+
+With --calibration every frame is a new view of the calibrated sensor in its setting (grid, mounting, seabed,
+targets, effects, residual gain: sim/calibrated.py); --effects picks from the calibrated chain (default: all of
+it), --param overrides its parameters, and --scene renders that named scene on the calibrated sensor instead.
 
 DIR gets a frames folder (read back by `sonar_realism.io.read_frames`), `masks/NNNNNN.png` (uint8 object id per
 [range, beam] pixel, 0 = no object) and `manifest.json` (scene, seed, sensor, poses, objects, effects with
@@ -27,6 +32,8 @@ from sonar_realism.config import to_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import write_frames
+from sonar_realism.sim.calibrated import finish, sensor_for, simulate_calibrated
+from sonar_realism.sim.calibration import load_calibration
 from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
 from sonar_realism.sim.scene import SCENES, build_scene
 from sonar_realism.sim.sensor import SENSORS, SensorConfig
@@ -36,9 +43,11 @@ STORAGE_DTYPES = ("float32", "uint16")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", default="default", help=f"scene name ({', '.join(SCENES)}); default: default")
-    parser.add_argument("--effects", default="none",
-                        help=f"none, all, or a comma list of: {', '.join(PIPELINE_ORDER)} (default: none)")
+    parser.add_argument("--calibration", help="CALIB.json from `sonar-realism calibrate`: frames of that sensor")
+    parser.add_argument("--scene", help=f"scene name ({', '.join(SCENES)}); default: default, or with --calibration a "
+                                        "new randomised view per frame")
+    parser.add_argument("--effects", help=f"none, all, or a comma list of: {', '.join(PIPELINE_ORDER)} (default: none; "
+                                          "with --calibration all, calibrated)")
     parser.add_argument("--n", type=int, default=24, help="number of frames (default 24)")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the world and the per-ping draws (default 0)")
@@ -52,6 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dtype", default="float32", choices=STORAGE_DTYPES,
                         help="storage of frames without gamma_quantization: float32 amplitude, or uint16 "
                              "(amplitude * 65535, compact lossless PNG); 8-bit output comes from gamma_quantization")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="render frames on this many processes (same frames, same order; default 1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -80,6 +91,10 @@ def sensor_from_args(args: argparse.Namespace) -> SensorConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.calibration:
+        return run_calibrated(args)
+    args.scene = args.scene or "default"
+    args.effects = args.effects or "none"
     if args.scene not in SCENES:
         raise ConfigError(f"unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}")
     if args.n < 1:
@@ -92,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
 
     world = build_scene(args.scene, args.seed, sensor.max_range_m)
     poses = world.trajectory(args.n)
-    simulated = tqdm(simulate(world, effects, args.n, args.seed, sensor), desc="simulate", total=args.n,
-                     unit="frame", disable=args.quiet)
+    simulated = tqdm(simulate(world, effects, args.n, args.seed, sensor, workers=args.workers), desc="simulate",
+                     total=args.n, unit="frame", disable=args.quiet)
 
     def frames() -> Iterator[SonarImage]:
         for index, (frame, mask) in enumerate(simulated):
@@ -115,6 +130,60 @@ def run(args: argparse.Namespace) -> int:
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
     print(f"wrote {count} frames, masks and manifest.json to {out}", file=sys.stderr)
+    return 0
+
+
+def run_calibrated(args: argparse.Namespace) -> int:
+    """Frames of the calibrated sensor: each a new randomised view, or `--scene` on the calibrated sensor."""
+    calibration = load_calibration(args.calibration)
+    if args.n < 1:
+        raise ConfigError(f"--n: expected at least 1 frame, got {args.n}")
+    if args.scene is not None and args.scene not in SCENES:
+        raise ConfigError(f"unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}")
+    params = parse_params(args.param)
+    calibrated = {e.name: e for e in calibration.effect_chain()}
+    wanted = resolve_effects(args.effects or "all")  # names checked against the catalogue
+    chain = resolve_effects([calibrated[e.name] for e in wanted], params)
+    out = Path(args.out)
+    (out / "masks").mkdir(parents=True, exist_ok=True)
+    objects: list[list[dict[str, Any]]] = []
+    poses: list[dict[str, float]] = []
+
+    if args.scene is None:
+        pairs = simulate_calibrated(calibration, args.n, args.seed, chain, workers=args.workers)
+    else:
+        sensor = sensor_for(calibration.grid.modes[0], calibration.mounting.vertical_fov_deg)
+        world = build_scene(args.scene, args.seed, sensor.max_range_m)
+        pairs = ((finish(calibration, frame, chain, np.random.default_rng([args.seed, i])), mask)
+                 for i, (frame, mask) in enumerate(simulate(world, "none", args.n, args.seed, sensor,
+                                                            workers=args.workers)))
+
+    def frames() -> Iterator[SonarImage]:
+        for index, (frame, mask) in enumerate(tqdm(pairs, desc="simulate", total=args.n, unit="frame",
+                                                   disable=args.quiet)):
+            if not cv2.imwrite(str(out / "masks" / f"{index:06d}.png"), mask):
+                raise ConfigError(f"could not write {out / 'masks' / f'{index:06d}.png'}")
+            objects.append(list(frame.meta.get("objects", [])))
+            poses.append(dict(frame.meta.get("pose", {})))
+            yield _stored(frame, args.dtype)
+
+    count = write_frames(frames(), out)
+    argv = ["--calibration", str(args.calibration), "--n", str(args.n), "--seed", str(args.seed), "--out",
+            str(args.out)] + (["--scene", args.scene] if args.scene else []) + (
+        ["--effects", args.effects] if args.effects else []) + [x for item in args.param for x in ("--param", item)]
+    manifest = {
+        "calibration": str(args.calibration), "calibration_source": calibration.source,
+        "scene": args.scene or "calibrated (a new view per frame)", "seed": args.seed, "n": count,
+        "effects": [{"name": e.name, "params": e.params()} for e in chain], "poses": poses,
+        "objects": objects if args.scene is None else [
+            {"id": o.object_id, "kind": o.kind, "position": list(o.position), "material": o.material}
+            for o in world.objects],
+        "masks": "masks/NNNNNN.png: uint8 object id per [range, beam] pixel (0 = none); with a calibration the ids "
+                 "are per frame (objects[i] lists frame i's)",
+        "command": "sonar-realism simulate " + " ".join(shlex.quote(a) for a in argv),
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    print(f"wrote {count} calibrated frames, masks and manifest.json to {out}", file=sys.stderr)
     return 0
 
 

@@ -42,14 +42,41 @@ DEFAULT_ALTITUDE_M = 2.0
 DEFAULT_TILT_RAD = math.radians(10.0)
 
 
+# The catalogue: every Effect subclass declared with `order=` registers itself here (name -> class).
+_REGISTRY: dict[str, type[Effect]] = {}
+
+
 class Effect(abc.ABC):
-    """Base of every effect stage. Subclasses are frozen dataclasses of physical parameters."""
+    """Base of every effect stage. Subclasses are frozen dataclasses of physical parameters.
+
+    A subclass joins the catalogue by naming its place in the forward model: `class X(Effect, order=55)`.
+    Everything that lists effects (EFFECTS, PIPELINE_ORDER, the calibration's fitted parameters, the
+    diagnosis' validation) derives from that registry, so adding an effect is adding one class.
+    """
 
     name: ClassVar[str]
+    # Position in the physical forward model (PIPELINE_ORDER sorts by it).
+    ORDER: ClassVar[float]
     # Plausible range of each continuous parameter (what a fit searches over).
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]]
     # Hard physical limits (inclusive) that validate() enforces; wider than PARAM_BOUNDS.
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]]
+    # Parameters searched on a log scale (they span decades).
+    LOG_SCALE: ClassVar[frozenset[str]] = frozenset()
+    # Parameters the calibration refits to a real recording; the others keep their physical defaults.
+    CALIBRATED: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, order: float | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if order is None:
+            return  # a helper stage (e.g. the diagnosis' gain yardstick), not a catalogue effect
+        if cls.name in _REGISTRY:
+            raise ConfigError(f"effect {cls.name!r} registered twice ({_REGISTRY[cls.name].__name__}, {cls.__name__})")
+        unknown = (set(cls.CALIBRATED) | set(cls.LOG_SCALE)) - set(cls.PARAM_BOUNDS)
+        if unknown:
+            raise ConfigError(f"effect {cls.name}: calibrated/log parameters without bounds: {sorted(unknown)}")
+        cls.ORDER = float(order)
+        _REGISTRY[cls.name] = cls
 
     def validate(self) -> None:
         for spec in dataclasses.fields(self):  # type: ignore[arg-type]
@@ -182,7 +209,7 @@ def seabed_elevation(frame: SonarImage, altitude_m: float, tilt_rad: float) -> n
 
 
 @dataclass(frozen=True)
-class Speckle(Effect):
+class Speckle(Effect, order=30):
     """Coherent speckle: many sub-resolution scatterers per cell add with random phases.
 
     The field of a cell is circular complex Gaussian (Rayleigh amplitude); a gamma-distributed texture of
@@ -204,6 +231,8 @@ class Speckle(Effect):
         "shape_nu": (0.5, 50.0), "grain_beams": (0.3, 4.0), "grain_ranges": (0.3, 4.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "shape_nu": (0.05, 1e6), "grain_beams": (0.0, 50.0), "grain_ranges": (0.0, 50.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("shape_nu", "grain_beams", "grain_ranges")
+    LOG_SCALE: ClassVar[frozenset[str]] = frozenset({"shape_nu"})
 
     # Above this shape the gamma texture is indistinguishable from 1 (SI change < 0.2 %).
     RAYLEIGH_LIMIT_NU: ClassVar[float] = 1000.0
@@ -234,7 +263,7 @@ class Speckle(Effect):
 
 
 @dataclass(frozen=True)
-class BeamSidelobes(Effect):
+class BeamSidelobes(Effect, order=50):
     """Horizontal receive beam pattern and cross-talk: bright returns smear along their constant-range arc.
 
     A line array's power pattern is sinc^2 in sin(bearing); Oculus beams are equally spaced in sin(bearing),
@@ -252,6 +281,7 @@ class BeamSidelobes(Effect):
         "mainlobe_deg": (0.2, 3.0), "sidelobe_db": (-45.0, -10.0), "crosstalk_db": (-60.0, -15.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "mainlobe_deg": (0.01, 30.0), "sidelobe_db": (-120.0, 0.0), "crosstalk_db": (-200.0, 0.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("sidelobe_db",)
 
     # Sidelobes kept on each side of the mainlobe (the pattern decays as 1/u^2; further ones are < -40 dB).
     N_SIDELOBES: ClassVar[int] = 12
@@ -278,7 +308,7 @@ class BeamSidelobes(Effect):
 
 
 @dataclass(frozen=True)
-class RangeBlur(Effect):
+class RangeBlur(Effect, order=60):
     """Range point-spread function: pulse length (or compressed-pulse width) and range sidelobes.
 
     The detected echo of a point is the pulse envelope: a Gaussian of FWHM `resolution_m` (c*tau/2 or c/2B;
@@ -294,6 +324,8 @@ class RangeBlur(Effect):
         "resolution_m": (0.002, 0.3), "sidelobe_db": (-50.0, -10.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "resolution_m": (1e-4, 10.0), "sidelobe_db": (-200.0, 0.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("resolution_m", "sidelobe_db")
+    LOG_SCALE: ClassVar[frozenset[str]] = frozenset({"resolution_m"})
 
     def kernel(self, frame: SonarImage) -> np.ndarray:
         """Power PSF along range, in bins (sums to 1)."""
@@ -315,7 +347,7 @@ class RangeBlur(Effect):
 
 
 @dataclass(frozen=True)
-class TvgNoise(Effect):
+class TvgNoise(Effect, order=70):
     """Time-varying gain and the electronic noise floor it amplifies with range.
 
     Echoes lose `tvg_log_coeff_db`*log10(r) to spreading and 2*`absorption_db_per_m`*r to absorption; the TVG
@@ -337,6 +369,7 @@ class TvgNoise(Effect):
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "noise_amplitude": (0.0, 10.0), "tvg_log_coeff_db": (0.0, 80.0), "absorption_db_per_m": (0.0, 10.0),
         "residual_ramp_db": (-60.0, 60.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("noise_amplitude", "tvg_log_coeff_db", "residual_ramp_db")
 
     # Beamforming correlates the noise across about one beam (sigma in beams).
     NOISE_GRAIN_BEAMS: ClassVar[float] = 0.7
@@ -382,7 +415,7 @@ def _vertical_weight(ranges: bytes, azimuths: bytes, altitude_m: float, tilt_rad
 
 
 @dataclass(frozen=True)
-class ElevationSpread(Effect):
+class ElevationSpread(Effect, order=10):
     """Vertical beam pattern: returns weighted by where in the vertical fan they arrive from.
 
     A ray-cast sensor treats the vertical aperture as a box; a real transducer's two-way vertical pattern
@@ -400,6 +433,7 @@ class ElevationSpread(Effect):
         "beamwidth_deg": (6.0, 40.0), "floor_db": (-40.0, -6.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "beamwidth_deg": (0.5, 90.0), "floor_db": (-200.0, 0.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("beamwidth_deg",)
 
     def weight(self, frame: SonarImage) -> np.ndarray:
         """Amplitude weight per (range, beam): the two-way vertical pattern at the seabed's elevation."""
@@ -412,7 +446,7 @@ class ElevationSpread(Effect):
 
 
 @dataclass(frozen=True)
-class Multipath(Effect):
+class Multipath(Effect, order=20):
     """Multipath ghosts: weaker copies of the scene at longer range and the same bearing.
 
     A path that bounces off the sea surface, the seabed or a tank wall arrives later; with the image method the
@@ -465,7 +499,7 @@ def _shear_maps(ranges: bytes, azimuths: bytes, yaw_rate_rad_s: float) -> tuple[
 
 
 @dataclass(frozen=True)
-class MotionBlur(Effect):
+class MotionBlur(Effect, order=40):
     """Platform motion during a ping.
 
     All beams come from one transmission but range r is heard at t = 2r/c: a yaw rate `yaw_rate_deg_s` shears
@@ -501,7 +535,7 @@ class MotionBlur(Effect):
 
 
 @dataclass(frozen=True)
-class RingDown(Effect):
+class RingDown(Effect, order=90):
     """Transmit ring-down: the receiver still rings from the transmit pulse at the first range bins.
 
     Adds a full-width band of power amplitude^2 * exp(-2 (r - r_0)/`decay_m`) (amplitude decays with e-folding
@@ -517,6 +551,8 @@ class RingDown(Effect):
         "amplitude": (0.0, 1.0), "decay_m": (0.005, 0.5), "beam_ripple": (0.0, 0.8)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "amplitude": (0.0, 10.0), "decay_m": (1e-5, 100.0), "beam_ripple": (0.0, 5.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("amplitude", "decay_m")
+    LOG_SCALE: ClassVar[frozenset[str]] = frozenset({"decay_m"})
 
     def band(self, frame: SonarImage) -> np.ndarray:
         """Ring-down amplitude per range bin (zero where below 1e-4 of `amplitude`)."""
@@ -539,7 +575,51 @@ class RingDown(Effect):
 
 
 @dataclass(frozen=True)
-class Interference(Effect):
+class WaterColumn(Effect, order=75):
+    """What the water column shows between the transducer and the seabed: volume reverberation and beam stripes.
+
+    Suspended particles and plankton back-scatter weakly everywhere: a speckled haze of rms amplitude
+    `haze_level` (after TVG, so flat in range) that fills the rows above the seabed return. Each beam's receive
+    chain has its own gain error, fixed over a ping: a log-normal gain of rms `stripe_contrast` (natural log),
+    correlated over `stripe_width_beams` beams, multiplies haze and signal alike, so vertical stripes run down
+    the whole fan and show most where nothing else does (the water column).
+    """
+
+    name: ClassVar[str] = "water_column"
+    haze_level: float = 0.02
+    stripe_contrast: float = 0.15
+    stripe_width_beams: float = 1.5
+    PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
+        "haze_level": (0.0, 0.3), "stripe_contrast": (0.0, 0.8), "stripe_width_beams": (0.3, 8.0)}
+    VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
+        "haze_level": (0.0, 10.0), "stripe_contrast": (0.0, 3.0), "stripe_width_beams": (0.0, 100.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("haze_level", "stripe_contrast")
+
+    def beam_gain(self, n_beams: int, rng: np.random.Generator) -> np.ndarray:
+        """Per-beam amplitude gain of one ping (log-normal, unit median)."""
+        white = rng.standard_normal(n_beams + 16).astype(np.float32)
+        if self.stripe_width_beams > 0.3:
+            kernel = cv2.getGaussianKernel(2 * int(math.ceil(3 * self.stripe_width_beams)) + 1,
+                                           self.stripe_width_beams, cv2.CV_32F).ravel()
+            white = np.convolve(white, kernel / math.sqrt(float((kernel ** 2).sum())), mode="same")
+        return np.exp(np.float32(self.stripe_contrast) * white[8:8 + n_beams]).astype(np.float32)
+
+    def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
+        planes = _planes(intensity)
+        out = np.empty_like(planes)
+        level = np.float32(self.haze_level / math.sqrt(2.0))
+        for i, plane in enumerate(planes):
+            gain = self.beam_gain(frame.n_beams, rng)[None, :]
+            re, im = _complex_gaussian(rng, plane.shape)
+            re *= level
+            im *= level
+            re += plane
+            out[i] = np.sqrt(re * re + im * im) * gain
+        return out.reshape(intensity.shape)
+
+
+@dataclass(frozen=True)
+class Interference(Effect, order=80):
     """Pulses from other acoustic sources (another sonar, a DVL) arriving out of sync with our pings.
 
     Events per ping are Poisson with mean `rate_per_ping`; each lands at a uniform random apparent range
@@ -589,7 +669,7 @@ class Interference(Effect):
 
 
 @dataclass(frozen=True)
-class GammaQuantization(Effect):
+class GammaQuantization(Effect, order=100):
     """The sensor's output mapping: gain, gamma, 8-bit quantisation with saturation.
 
     v = clip(round(255 * (gain * A)^gamma), 0, 255). gamma ~0.5 (Oculus gamma code 127) makes Rayleigh
@@ -602,6 +682,7 @@ class GammaQuantization(Effect):
     gamma: float = 0.6
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {"gain": (0.2, 5.0), "gamma": (0.25, 1.2)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {"gain": (1e-6, 1e6), "gamma": (0.01, 5.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("gamma",)
 
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
         scaled = np.maximum(np.asarray(intensity, dtype=np.float32) * np.float32(self.gain), 0)
@@ -612,16 +693,17 @@ class GammaQuantization(Effect):
 
 # ----------------------------------------------------------------------------------------------- catalogue
 
-EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (
-    Speckle, BeamSidelobes, RangeBlur, TvgNoise, ElevationSpread, Multipath, MotionBlur, RingDown, Interference,
-    GammaQuantization)}
+# Physical order of the forward model (each class's `order=`): what the scene sends back (vertical pattern,
+# extra paths), the coherent sum (speckle), geometry during the ping, the beamformer and pulse PSFs, the receiver
+# (TVG + noise), what arrives outside the scene (interference, ring-down), and last the output mapping.
+PIPELINE_ORDER: tuple[str, ...] = tuple(sorted(_REGISTRY, key=lambda name: _REGISTRY[name].ORDER))
+# Registration (definition) order: the calibration's search visits parameters in it.
+EFFECTS: dict[str, type[Effect]] = dict(_REGISTRY)
 
-# Physical order of the forward model: what the scene sends back (vertical pattern, extra paths), the coherent
-# sum (speckle), geometry during the ping, the beamformer and pulse PSFs, the receiver (TVG + noise), what
-# arrives outside the scene (interference, ring-down), and last the output mapping.
-PIPELINE_ORDER: tuple[str, ...] = (
-    "elevation_spread", "multipath", "speckle", "motion_blur", "beam_sidelobes", "range_blur", "tvg_noise",
-    "interference", "ring_down", "gamma_quantization")
+
+def calibrated_parameters() -> tuple[tuple[str, str, bool], ...]:
+    """(effect, parameter, log-scale search) for every parameter the calibration refits, from the registry."""
+    return tuple((name, param, param in cls.LOG_SCALE) for name, cls in EFFECTS.items() for param in cls.CALIBRATED)
 
 
 def make_effect(name: str, **params: Any) -> Effect:

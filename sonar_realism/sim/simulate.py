@@ -11,6 +11,7 @@ import numpy as np
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.effects import Effect, apply_effects, resolve_effects
+from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.render import render
 from sonar_realism.sim.scene import Pose, Scene, build_scene
 from sonar_realism.sim.sensor import M1200D_1200KHZ, SensorConfig
@@ -40,14 +41,16 @@ def frame_for(scene: Scene, pose: Pose, sensor: SensorConfig, index: int) -> tup
 
 def simulate(scene: str | Scene = "default", effects: str | Sequence[str | Effect] | None = "none", n: int = 24,
              seed: int = 0, sensor: SensorConfig | None = None,
-             params: dict[str, dict[str, Any]] | None = None) -> Iterator[tuple[SonarImage, np.ndarray]]:
+             params: dict[str, dict[str, Any]] | None = None, workers: int = 1,
+             ) -> Iterator[tuple[SonarImage, np.ndarray]]:
     """Yield n (frame, object mask) pairs along the scene's trajectory.
 
     scene: a name in SCENES (built with `seed` and the sensor's range) or an already built Scene.
     effects: "none" (the raw sim), "all", "a,b", or a list of names/effect instances; `params` overrides effect
     parameters by name ({"speckle": {"shape_nu": 3}}). Frames are float32 amplitude, or uint8 when
     gamma_quantization is on; masks are uint8 object ids on the same [range, beam] grid. Everything is fixed by
-    `seed`: the world (scene), and, per frame, the electronic noise and other per-ping draws.
+    `seed`: the world (scene), and, per frame, the electronic noise and other per-ping draws, so `workers`
+    processes (sim/parallel.py) give the same frames in the same order as one.
     """
     if not isinstance(n, int) or n < 0:
         raise ConfigError(f"n: expected a non-negative number of frames, got {n!r}")
@@ -55,8 +58,12 @@ def simulate(scene: str | Scene = "default", effects: str | Sequence[str | Effec
     sensor.validate()
     chosen = resolve_effects(effects, params)
     world = scene if isinstance(scene, Scene) else build_scene(scene, seed, sensor.max_range_m)
-    for index, pose in enumerate(world.trajectory(n)):
-        frame, mask = frame_for(world, pose, sensor, index)
+    poses = world.trajectory(n)
+
+    def one(index: int) -> tuple[SonarImage, np.ndarray]:
+        frame, mask = frame_for(world, poses[index], sensor, index)
         if chosen:
             frame = apply_effects(frame, chosen, np.random.default_rng([seed, index]))
-        yield frame, mask
+        return frame, mask
+
+    yield from frames_in_parallel(one, len(poses), workers)

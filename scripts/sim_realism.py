@@ -1,0 +1,155 @@
+"""How much the calibrated simulator looks like the sensor: issue 11's goals, measured in one run.
+
+    python scripts/sim_realism.py [--calibration CALIB.json] [--seeds 0 1 2] [--json OUT.json]
+    python scripts/sim_realism.py --aris [--calibration CALIB.json]
+
+Oculus (default): calibrate on recording OCULUS_FIT_RECORDING (or take --calibration made from it), render as
+many frames as the held-out recording OCULUS_HELD_OUT_RECORDING has, and compare both the calibrated sim and
+the fit recording itself (the real-vs-real yardstick) with the held-out recording. Nothing is tuned on the
+held-out recording. ARIS: calibrate on every other frame of the water-tank set and compare with the others.
+
+Measures (all on frames scaled by their own maximum, the real export's rule):
+- whole-frame two-sample classifier on 128 x 128 model grids (evaluate.two_sample), balanced accuracy;
+- texture patch two-sample test at native resolution (32 x 32 patches, patch mean removed);
+- near-zero pixel fraction (<= 2 counts of 255);
+- mean range and bearing profiles (48 bins): mean |sim - real| over the real profile's mean;
+- speckle contrast (evaluate.texture.speckle_statistics per frame, mean over range bands);
+- grain: lag-1 correlation of the detrended frame along range and across beams (evaluate.statistics).
+Classifier tests are averaged over --seeds (each seed: new sim frames and a new classifier initialisation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import torch  # noqa: E402
+
+from sonar_realism.data import OCULUS_FIT_RECORDING, OCULUS_HELD_OUT_RECORDING, real_aris_dir, real_oculus_dir  # noqa: E402
+from sonar_realism.datasets import to_model_grid  # noqa: E402
+from sonar_realism.evaluate.statistics import _detrend, lag_correlation  # noqa: E402
+from sonar_realism.evaluate.texture import speckle_statistics  # noqa: E402
+from sonar_realism.evaluate.two_sample import (  # noqa: E402
+    TextureTestConfig,
+    classifier_two_sample_test,
+    texture_two_sample_test,
+)
+from sonar_realism.frames import SonarImage  # noqa: E402
+from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, load_recording  # noqa: E402
+from sonar_realism.sim.calibrated import simulate_calibrated  # noqa: E402
+from sonar_realism.sim.calibration import Calibration, load_calibration, save_calibration  # noqa: E402
+from sonar_realism.sim.fingerprint import PROFILE_BINS, per_frame_rescaled, resample_profile  # noqa: E402
+from sonar_realism.sim.measure import near_zero_fraction  # noqa: E402
+
+GRID = (128, 128)
+
+
+def scaled(frames: list[SonarImage]) -> list[np.ndarray]:
+    return [per_frame_rescaled(f.intensity) for f in frames]
+
+
+def statistics(images: list[np.ndarray]) -> dict[str, object]:
+    rows = np.mean([resample_profile(i.mean(axis=1), PROFILE_BINS) for i in images], axis=0)
+    cols = np.mean([resample_profile(i.mean(axis=0), PROFILE_BINS) for i in images], axis=0)
+    contrast = np.nanmean([np.nanmean([b.contrast for b in speckle_statistics(i[None])]) for i in images])
+    along = np.mean([lag_correlation(_detrend(i[None], 9), 1, 1)[0, 0] for i in images])
+    across = np.mean([lag_correlation(_detrend(i[None], 9), 2, 1)[0, 0] for i in images])
+    return {"near_zero": float(np.mean([near_zero_fraction(i) for i in images])), "range_profile": rows,
+            "bearing_profile": cols, "speckle_contrast": float(contrast), "grain_range": float(along),
+            "grain_beams": float(across)}
+
+
+def compare(candidate: dict[str, object], real: dict[str, object]) -> dict[str, float]:
+    out = {"near_zero_points": 100 * (float(candidate["near_zero"]) - float(real["near_zero"]))}
+    for key in ("range_profile", "bearing_profile"):
+        a, b = np.asarray(candidate[key]), np.asarray(real[key])
+        out[f"{key}_rel"] = float(np.abs(a - b).mean() / max(float(b.mean()), 1e-9))
+    for key in ("speckle_contrast", "grain_range", "grain_beams"):
+        out[f"{key}_rel"] = float(candidate[key]) / float(real[key]) - 1
+    return out
+
+
+def classifiers(real: list[SonarImage], other: list[SonarImage], seed: int) -> dict[str, float]:
+    torch.manual_seed(seed)
+    grid_real = np.stack([to_model_grid(f, GRID, "frame_max") for f in real])
+    grid_other = np.stack([to_model_grid(f, GRID, "frame_max") for f in other])
+    whole = classifier_two_sample_test(grid_real, grid_other, seed=seed)
+    texture = texture_two_sample_test(scaled(real), scaled(other), TextureTestConfig(seed=seed))
+    return {"whole_frame_accuracy": whole.accuracy, "texture_accuracy": texture.accuracy}
+
+
+def evenly(frames: list[SonarImage], n: int) -> list[SonarImage]:
+    idx = np.linspace(0, len(frames) - 1, n).round().astype(int)
+    return [frames[i] for i in idx]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--calibration", help="use this CALIB.json instead of calibrating first")
+    parser.add_argument("--save-calibration", help="write the calibration made here to this path")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--aris", action="store_true", help="the ARIS water-tank set instead of the Oculus split")
+    parser.add_argument("--json", help="write every figure to this JSON file")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    started = time.time()
+
+    if args.aris:
+        frames = load_recording(real_aris_dir() / "Images")
+        fit_real, held = frames[0::2], frames[1::2]
+        held = evenly(held, min(len(held), 120))
+        config = CalibrateConfig(vertical_fov_deg=14.0)
+        source = "ARIS water tank, even frames"
+    else:
+        fit_real = load_recording(real_oculus_dir(), OCULUS_FIT_RECORDING)
+        held = load_recording(real_oculus_dir(), OCULUS_HELD_OUT_RECORDING)
+        config = CalibrateConfig()
+        source = f"oculus_polar_seabed [{OCULUS_FIT_RECORDING}]"
+    if args.calibration:
+        calibration: Calibration = load_calibration(args.calibration)
+    else:
+        calibration = calibrate(fit_real, source, config, log=sys.stderr).calibration
+        if args.save_calibration:
+            save_calibration(calibration, args.save_calibration)
+    yardstick = evenly(fit_real, len(held))
+
+    real_stats = statistics(scaled(held))
+    results: dict[str, dict] = {"real_fit_recording": {}, "calibrated_sim": {}}
+    per_seed: dict[str, list[dict[str, float]]] = {"real_fit_recording": [], "calibrated_sim": []}
+    for seed in args.seeds:
+        sim = [f for f, _ in simulate_calibrated(calibration, len(held), seed=1000 + seed)]
+        per_seed["calibrated_sim"].append(classifiers(held, sim, seed))
+        per_seed["real_fit_recording"].append(classifiers(held, yardstick, seed))
+        print(f"seed {seed}: sim {per_seed['calibrated_sim'][-1]}, real {per_seed['real_fit_recording'][-1]}",
+              file=sys.stderr)
+        if seed == args.seeds[0]:
+            results["calibrated_sim"]["statistics"] = compare(statistics(scaled(sim)), real_stats)
+            results["real_fit_recording"]["statistics"] = compare(statistics(scaled(yardstick)), real_stats)
+            results["calibrated_sim"]["near_zero"] = statistics(scaled(sim))["near_zero"]
+    for name, runs in per_seed.items():
+        results[name]["classifiers"] = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
+        results[name]["classifiers_per_seed"] = runs
+    results["held_out_near_zero"] = real_stats["near_zero"]
+    results["setting"] = {"set": "aris" if args.aris else "oculus", "held_out_frames": len(held),
+                          "fit_frames": len(fit_real), "seeds": args.seeds, "calibration_distances":
+                          calibration.distances, "seconds": round(time.time() - started, 1),
+                          "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                          "load": os.getloadavg()[0], "utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime())}
+    text = json.dumps(results, indent=1)
+    print(text)
+    if args.json:
+        Path(args.json).write_text(text + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,182 @@
+"""Frames of a calibrated sensor: every frame a new view drawn from what CALIB.json says about the setting.
+
+Per frame (all from `seed` and the frame index): a grid the sensor used (by its share of the recording), the
+sonar's height and tilt (calibrated mean plus heave/pitch spread), a fresh seabed patch with the calibrated
+patchiness, and, as often as the recording shows one, a target (sphere, cube or barrel) of the recording's size
+at the recording's range, anywhere across the central fan. The clean render goes through the calibrated
+effect chain, the residual gain, and the recording's export (per-frame max to 255 when it had one).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+
+from sonar_realism.frames import SonarImage
+from sonar_realism.sim.calibration import Calibration, GridMode
+from sonar_realism.sim.effects import Effect, apply_effects
+from sonar_realism.sim.parallel import frames_in_parallel
+from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
+from sonar_realism.sim.sensor import SensorConfig
+from sonar_realism.sim.simulate import frame_for
+
+TARGET_KINDS = ("sphere", "cube", "barrel")
+# Spread of one target's size around the calibrated size (log-normal sigma) and of its range (fraction).
+SIZE_SPREAD = 0.25
+RANGE_SPREAD = 0.15
+# Targets sit within this share of the half fan around boresight (the recordings keep them in view).
+BEARING_SHARE = 0.55
+# Dark patches (mud, weed, holes) keep this share of the surrounding backscatter.
+DARK_PATCH_LEVEL = 0.15
+ELEVATION_RAYS = 64
+SEABED_AMPLITUDE = 0.35
+
+
+@dataclasses.dataclass(frozen=True)
+class SeabedLook:
+    """The seabed terms a frame is drawn with (the calibration's values, or trial values during a fit)."""
+
+    patch_contrast: float
+    patch_scale_m: float
+    dark_fraction: float
+    roughness_m: float
+
+
+def seabed_look(calibration: Calibration) -> SeabedLook:
+    s = calibration.seabed
+    return SeabedLook(s.patch_contrast.value, s.patch_scale_m.value, s.dark_fraction.value, s.roughness_m.value)
+
+
+def sensor_for(mode: GridMode, vertical_fov_deg: float) -> SensorConfig:
+    sensor = SensorConfig(n_beams=mode.n_beams, n_ranges=mode.n_ranges, fov_deg=mode.fov_deg,
+                          vertical_fov_deg=vertical_fov_deg, min_range_m=mode.min_range_m,
+                          max_range_m=mode.max_range_m, elevation_rays=ELEVATION_RAYS)
+    sensor.validate()
+    return sensor
+
+
+def make_patch(rng: np.random.Generator, extent_m: float, look: SeabedLook) -> Seabed:
+    """A square seabed centred on the origin: roughness, gentle undulation, and a log-normal albedo with dark
+    patches; `look` sets the contrast, the correlation length and the dark share of the mean level."""
+    spacing = max(0.04, extent_m / 640)
+    n = int(math.ceil(extent_m / spacing)) + 1
+    heights = (look.roughness_m * _smooth_noise(rng, (n, n), 0.15 / spacing)
+               + 0.05 * _smooth_noise(rng, (n, n), 3.0 / spacing))
+    scale_cells = max(look.patch_scale_m / spacing, 0.5)
+    albedo = np.exp(look.patch_contrast * _smooth_noise(rng, (n, n), scale_cells))
+    if look.dark_fraction > 0:
+        patches = _smooth_noise(rng, (n, n), scale_cells)
+        threshold = np.quantile(patches[:: 4, :: 4], 1 - look.dark_fraction)
+        dark = 1.0 / (1.0 + np.exp(-(patches - threshold) * 6.0))
+        albedo = albedo * (1 - (1 - DARK_PATCH_LEVEL) * dark)
+    # unit median: the patches vary about sand's level instead of lifting most of the seabed into the clip at 1
+    albedo = albedo / float(np.median(albedo[:: 4, :: 4]))
+    return Seabed(-extent_m / 2, -extent_m / 2, spacing, heights.astype(np.float32), albedo.astype(np.float32))
+
+
+def _place_target(maker: _ObjectMaker, rng: np.random.Generator, calibration: Calibration, pose: Pose,
+                  mode: GridMode) -> None:
+    t = calibration.targets
+    size = float(np.clip(t.size_m.value * math.exp(rng.normal(0.0, SIZE_SPREAD)), 0.05, 0.3 * mode.max_range_m))
+    slant = mode.max_range_m * t.range_fraction.value * (1 + rng.uniform(-RANGE_SPREAD, RANGE_SPREAD))
+    slant = float(np.clip(slant, pose.z * 1.05 + size, 0.9 * mode.max_range_m))
+    ground = math.sqrt(max(slant ** 2 - pose.z ** 2, 0.01))
+    bearing = math.radians(mode.fov_deg / 2) * BEARING_SHARE * rng.uniform(-1.0, 1.0)
+    heading = pose.yaw - bearing  # bearing is positive to starboard
+    x, y = ground * math.cos(heading), ground * math.sin(heading)
+    kind = TARGET_KINDS[int(rng.integers(len(TARGET_KINDS)))]
+    if kind == "sphere":
+        maker.sphere(x, y, radius=size / 2)
+    elif kind == "cube":
+        maker.box(x, y, half=(size / 2, size / 2, size / 2))
+    else:
+        maker.barrel(x, y, radius=size * 0.35, length=size, upright=bool(rng.random() < 0.5))
+
+
+def calibrated_view(calibration: Calibration, seed: int, index: int, look: SeabedLook | None = None,
+                    ) -> tuple[SonarImage, np.ndarray]:
+    """The clean frame (float32 amplitude) and object mask of frame `index`: a new scene per frame."""
+    rng = np.random.default_rng([seed, index, 11])
+    modes = calibration.grid.modes
+    mode = modes[int(rng.choice(len(modes), p=np.array([m.weight for m in modes]) / sum(m.weight for m in modes)))]
+    m = calibration.mounting
+    height = max(0.05, m.height_m.value + m.heave_sd_m.value * float(rng.standard_normal()))
+    tilt = math.radians(m.tilt_deg.value + m.pitch_sd_deg.value * float(rng.standard_normal()))
+    pose = Pose(0.0, 0.0, height, yaw=float(rng.uniform(0, 2 * math.pi)), tilt=tilt)
+    seabed = make_patch(rng, 2 * (mode.max_range_m + 1.0), look or seabed_look(calibration))
+    maker = _ObjectMaker(seabed, rng)
+    if rng.random() < calibration.targets.present_fraction.value:
+        _place_target(maker, rng, calibration, pose, mode)
+    scene = Scene("calibrated", int(rng.integers(2 ** 31)), seabed, tuple(maker.primitives), tuple(maker.objects),
+                  trajectory=lambda n: [pose] * n, trajectory_kind="calibrated")
+    frame, mask = frame_for(scene, pose, sensor_for(mode, m.vertical_fov_deg), index)
+    # The recording is rescaled per frame, so its absolute level is unknown: put the seabed at the level the
+    # effect defaults assume (sand at 15 deg grazing), so signal-to-noise is the effects' to fit, not the tilt's.
+    seabed = frame.intensity[(frame.intensity > 0) & (mask == 0)]
+    if seabed.size:
+        level = np.float32(np.clip(SEABED_AMPLITUDE / max(float(np.median(seabed)), 1e-6), 0.3, 30.0))
+        gain = np.where(target_pixels(mask), np.float32(level * calibration.targets.highlight_gain), level)
+        frame = frame.replace(intensity=(frame.intensity * gain).astype(np.float32))
+    frame = frame.replace(meta={**frame.meta, "objects": [
+        {"id": o.object_id, "kind": o.kind, "position": list(o.position), "material": o.material}
+        for o in scene.objects]})
+    return frame, mask
+
+
+def target_pixels(mask: np.ndarray) -> np.ndarray:
+    """Where a target's return lies: its mask grown by the few bins a surface element is spread over."""
+    return cv2.dilate((mask > 0).astype(np.uint8), np.ones((7, 3), np.uint8)) > 0
+
+
+def residual_gain(calibration: Calibration, frame: SonarImage) -> np.ndarray:
+    """Amplitude gain [n_ranges, n_beams] of the calibration's residual range and bearing terms."""
+    rows = np.linspace(0.0, 1.0, frame.n_ranges)
+    cols = np.linspace(0.0, 1.0, frame.n_beams)
+    range_db = np.interp(rows, np.linspace(0, 1, len(calibration.range_gain_db)), calibration.range_gain_db)
+    bearing_db = np.interp(cols, np.linspace(0, 1, len(calibration.bearing_gain_db)), calibration.bearing_gain_db)
+    return (10 ** ((range_db[:, None] + bearing_db[None, :]) / 20)).astype(np.float32)
+
+
+def finish(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect], rng: np.random.Generator,
+           gain: bool = True) -> SonarImage:
+    """Effects before the output mapping, the residual gain, the output mapping, then the recording's export."""
+    before = [e for e in chain if e.name != "gamma_quantization"]
+    output = [e for e in chain if e.name == "gamma_quantization"]
+    frame = apply_effects(clean, before, rng) if before else clean
+    if gain:
+        frame = frame.replace(intensity=frame.intensity * residual_gain(calibration, frame))
+    if output:
+        frame = apply_effects(frame, output, rng)
+    if calibration.export_rescaled:
+        frame = _rescale_to_max(frame)
+    return frame
+
+
+def _rescale_to_max(frame: SonarImage) -> SonarImage:
+    """The export of the recording: raw * 255 / raw.max() per frame."""
+    image = frame.intensity.astype(np.float32)
+    peak = float(image.max())
+    if frame.intensity.dtype == np.uint8:
+        scaled = cv2.convertScaleAbs(image, alpha=255.0 / peak) if peak > 0 else frame.intensity
+        return frame.replace(intensity=scaled)
+    return frame.replace(intensity=image / peak if peak > 0 else image)
+
+
+def simulate_calibrated(calibration: Calibration, n: int, seed: int = 0, chain: Sequence[Effect] | None = None,
+                        workers: int = 1) -> Iterator[tuple[SonarImage, np.ndarray]]:
+    """n (frame, object mask) pairs of the calibrated sensor, each a new randomised view (same frames whatever
+    the number of worker processes)."""
+    effects = list(chain) if chain is not None else calibration.effect_chain()
+
+    def one(index: int) -> tuple[SonarImage, np.ndarray]:
+        clean, mask = calibrated_view(calibration, seed, index)
+        frame = finish(calibration, clean, effects, np.random.default_rng([seed, index]))
+        meta: dict[str, Any] = {**frame.meta, "source": "sim-calibrated", "calibration": calibration.source}
+        return frame.replace(meta=meta), mask
+
+    yield from frames_in_parallel(one, n, workers)

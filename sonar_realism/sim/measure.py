@@ -1,0 +1,177 @@
+"""Measurements on sonar frames that a calibration fits the simulator to: the same code measures the real
+recording and the simulated frames, so every fitted number is matched like for like.
+
+All images are float [n_ranges, n_beams] scaled so the frame maximum is 1 (the real export's rescale).
+
+- seabed onset per beam group: the first range after the water column where the smoothed brightness reaches
+  half the seabed level; its curvature across the fan gives the tilt, its range the height;
+- seabed patchiness: the local mean (a box a few cells wide) below the onset, as log level about each row's
+  median: its spread (interquartile, as an rms), its correlation length along range, the share below half;
+- a target: a long run of beams darker than the seabed around it behind a bright return (its shadow).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from sonar_realism.sim.fingerprint import NEAR_ZERO
+
+ONSET_GROUPS = 16
+TILT_GRID_DEG = np.arange(-5.0, 60.0, 0.5)
+# Weak pull of the tilt towards this value: where the fan is too narrow for the onset to curve, it decides.
+TILT_PRIOR_DEG = 10.0
+LOCAL_BOX = 9
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """What one frame says about the mounting: onset (m) at the central beams, fitted height and tilt."""
+
+    onset_m: float
+    height_m: float
+    tilt_deg: float
+
+
+def onset_rows(image: np.ndarray, groups: int = ONSET_GROUPS) -> np.ndarray:
+    """Row of the seabed onset per beam group (NaN where the group shows no water column above the seabed)."""
+    n_r, n_b = image.shape
+    groups = max(1, min(groups, n_b // 2))
+    width = n_b // groups
+    cols = image[:, :width * groups].reshape(n_r, groups, width).mean(axis=2)
+    smooth = cv2.blur(cols.astype(np.float32), (1, max(3, n_r // 40)))
+    level = np.percentile(smooth, 75, axis=0)
+    top = int(0.5 * n_r)
+    out = np.full(groups, np.nan)
+    for g in range(groups):
+        dark = np.nonzero(smooth[:top, g] < 0.3 * level[g])[0]
+        if dark.size == 0:
+            continue
+        above = np.nonzero(smooth[dark[0]:, g] > 0.5 * level[g])[0]
+        if above.size:
+            out[g] = dark[0] + above[0]
+    return out
+
+
+def group_bearings(azimuths_rad: np.ndarray, groups: int = ONSET_GROUPS) -> np.ndarray:
+    groups = max(1, min(groups, azimuths_rad.size // 2))
+    width = azimuths_rad.size // groups
+    return azimuths_rad[:width * groups].reshape(groups, width).mean(axis=1)
+
+
+def frame_geometry(image: np.ndarray, ranges_m: np.ndarray, azimuths_rad: np.ndarray,
+                   vertical_fov_deg: float) -> FrameGeometry | None:
+    """Height and tilt that put a flat seabed's first return (the lower edge of the vertical aperture) where
+    this frame's onset is, across the fan; None when fewer than 6 beam groups show an onset."""
+    rows = onset_rows(image)
+    theta = group_bearings(azimuths_rad)
+    ok = np.isfinite(rows)
+    if ok.sum() < 6:
+        return None
+    onset = np.interp(rows[ok], np.arange(ranges_m.size), ranges_m)
+    theta = theta[ok]
+    median = float(np.median(onset))
+    keep = np.abs(onset - median) < 0.3 * median
+    if keep.sum() < 6:
+        return None
+    onset, theta = onset[keep], theta[keep]
+    half_v = math.radians(vertical_fov_deg) / 2
+    best: tuple[float, float, float] | None = None
+    for tilt_deg in TILT_GRID_DEG:
+        t = math.radians(tilt_deg)
+        # downward component of the aperture's lower edge: the seabed at height h is first met at h / d
+        d = math.cos(half_v) * np.cos(theta) * math.sin(t) + math.sin(half_v) * math.cos(t)
+        if (d <= 0.01).any():
+            continue
+        height = float((onset / d).sum() / (1.0 / d ** 2).sum())
+        error = float(((onset - height / d) ** 2).mean()) + 1e-4 * median ** 2 * ((tilt_deg - TILT_PRIOR_DEG) / 10) ** 2
+        if best is None or error < best[0]:
+            best = (error, height, float(tilt_deg))
+    if best is None:
+        return None
+    central = np.abs(theta) <= np.quantile(np.abs(theta), 0.5)
+    return FrameGeometry(float(np.median(onset[central])), best[1], best[2])
+
+
+def seabed_rows(image: np.ndarray) -> int:
+    """First row below the seabed onset (median over beam groups; the top third when none is found)."""
+    rows = onset_rows(image)
+    return int(np.nanmedian(rows)) + 2 if np.isfinite(rows).any() else image.shape[0] // 3
+
+
+@dataclass(frozen=True)
+class SeabedStats:
+    contrast: float  # rms of log local mean below the onset
+    scale_rows: float  # correlation length of the log local mean along range, in rows
+    dark_fraction: float  # share of local means below half their median
+
+
+def seabed_stats(image: np.ndarray) -> SeabedStats | None:
+    start = seabed_rows(image)
+    region = image[start:]
+    if region.shape[0] < 4 * LOCAL_BOX:
+        return None
+    local = cv2.blur(region.astype(np.float32), (LOCAL_BOX, LOCAL_BOX))[LOCAL_BOX:-LOCAL_BOX, 2:-2]
+    median = float(np.median(local))
+    if median <= 1e-4:
+        return None
+    # log level about each row's median: the range trend (TVG, beam pattern) is not patchiness
+    log_mean = np.log(np.maximum(local, 0.02 * median))
+    centred = log_mean - np.median(log_mean, axis=1, keepdims=True)
+    low, high = np.percentile(centred, [25, 75])
+    contrast = float(high - low) / 1.349  # rms of a normal with that spread: shadows and holes do not inflate it
+    variance = float((centred ** 2).mean())
+    scale = float(centred.shape[0] // 2)
+    for lag in range(1, centred.shape[0] // 2):
+        if float((centred[lag:] * centred[:-lag]).mean()) / max(variance, 1e-12) < math.exp(-1):
+            scale = float(lag)
+            break
+    return SeabedStats(contrast, scale, float((centred < math.log(0.5)).mean()))
+
+
+@dataclass(frozen=True)
+class TargetStats:
+    width_beams: int  # of the shadow
+    start_row: int  # first row of the shadow
+    first_beam: int
+
+
+def target_shadow(image: np.ndarray) -> TargetStats | None:
+    """The widest run of beams whose local mean stays under 55 % of the seabed level over most of a quarter of
+    the rows below the onset (a target's shadow), or None."""
+    start = seabed_rows(image)
+    region = image[start:]
+    if region.shape[0] < 16:
+        return None
+    local = cv2.blur(region.astype(np.float32), (9, 25))
+    dark = local < 0.55 * float(np.median(local))
+    run_rows = max(3, region.shape[0] // 4)
+    long_run = cv2.blur(dark.astype(np.float32), (1, run_rows)) > 0.8
+    columns = long_run.any(axis=0)
+    best, run, best_end = 0, 0, 0
+    for j, flag in enumerate(columns):
+        run = run + 1 if flag else 0
+        if run > best:
+            best, best_end = run, j
+    if best < max(3, image.shape[1] // 32):
+        return None
+    cols = slice(best_end - best + 1, best_end + 1)
+    first = np.nonzero(long_run[:, cols].any(axis=1))[0]
+    # the centred box flags a run from half its length before the run starts
+    return TargetStats(best, start + (int(first[0]) + run_rows // 2 if first.size else 0), best_end - best + 1)
+
+
+def highlight_ratio(image: np.ndarray, columns: slice, shadow_row: int) -> float:
+    """Brightness of a target's return (95th percentile just ahead of its shadow) over the seabed median."""
+    top = max(0, shadow_row - max(8, image.shape[0] // 8))
+    ahead = image[top:shadow_row + 2, columns]
+    seabed = float(np.median(image[seabed_rows(image):]))
+    return float(np.percentile(ahead, 95)) / max(seabed, 1e-6) if ahead.size else math.nan
+
+
+def near_zero_fraction(image: np.ndarray, threshold: float = NEAR_ZERO) -> float:
+    """Share of pixels at or below 2 counts of the frame max (black water)."""
+    return float((image <= threshold).mean())

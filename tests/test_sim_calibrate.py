@@ -1,0 +1,156 @@
+"""calibrate -> CALIB.json -> simulate --calibration: a recording made by the simulator with known geometry is
+calibrated back (grid exactly, height and tilt within tolerance); the file is validated; bad input fails clearly."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from sonar_realism.cli import main as cli_main
+from sonar_realism.errors import ConfigError
+from sonar_realism.io import read_frames
+from sonar_realism.sim.calibrate import MIN_FRAMES, CalibrateConfig, calibrate
+from sonar_realism.sim.calibrated import simulate_calibrated
+from sonar_realism.sim.calibration import (
+    CALIBRATION_VERSION,
+    Calibration,
+    Estimate,
+    Grid,
+    GridMode,
+    Mounting,
+    SeabedTerms,
+    TargetTerms,
+    load_calibration,
+    save_calibration,
+)
+from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER
+
+HEIGHT_M, TILT_DEG = 1.2, 8.0
+
+
+def exact(value: float) -> Estimate:
+    return Estimate(value, value, value)
+
+
+def truth(present: float = 0.0) -> Calibration:
+    """A small sensor with known mounting, as a calibration would describe it."""
+    mode = GridMode(n_beams=64, n_ranges=160, min_range_m=0.0, max_range_m=8.0, fov_deg=90.0, weight=1.0)
+    return Calibration(
+        version=CALIBRATION_VERSION, source="truth", frames=1, grid=Grid((mode,), "recording", "recording"),
+        mounting=Mounting(exact(HEIGHT_M), exact(TILT_DEG), exact(0.05), exact(0.5), 20.0),
+        seabed=SeabedTerms(exact(0.5), exact(0.5), exact(0.1), exact(0.01)),
+        targets=TargetTerms(exact(present), exact(0.8), exact(0.5), exact(2.0), 1.0),
+        effects={name: EFFECTS[name]().params() for name in PIPELINE_ORDER}, fitted=(),
+        range_gain_db=(0.0, 0.0), bearing_gain_db=(0.0, 0.0), distances={}, export_rescaled=True)
+
+
+@pytest.fixture(scope="module")
+def recording() -> list:
+    return [frame for frame, _ in simulate_calibrated(truth(), 12, seed=3)]
+
+
+FAST = CalibrateConfig(sim_frames=3, rounds=1, bootstrap=20, effect_bootstrap=1)
+
+
+@pytest.fixture(scope="module")
+def calibrated(recording):
+    return calibrate(recording, "synthetic", FAST)
+
+
+def test_calibrate_recovers_grid_and_mounting_of_a_known_recording(calibrated) -> None:
+    c = calibrated.calibration
+    assert [(m.n_beams, m.n_ranges, m.max_range_m, m.fov_deg) for m in c.grid.modes] == [(64, 160, 8.0, 90.0)]
+    assert c.grid.bearing_source == "recording" and c.export_rescaled
+    assert c.mounting.height_m.value == pytest.approx(HEIGHT_M, rel=0.25)
+    assert c.mounting.tilt_deg.value == pytest.approx(TILT_DEG, abs=4.0)
+    for estimate in (c.mounting.height_m, c.mounting.tilt_deg, *(p.estimate for p in c.fitted)):
+        assert estimate.low <= estimate.value <= estimate.high
+    assert {(p.effect, p.name) for p in c.fitted} == {(n, p) for n in EFFECTS for p in EFFECTS[n].CALIBRATED}
+    assert c.distances["calibrated sim"] <= c.distances["geometry + default effects"] + 1e-9
+
+
+def test_calibration_file_round_trips_and_rejects_bad_content(calibrated, tmp_path: Path) -> None:
+    path = tmp_path / "CALIB.json"
+    save_calibration(calibrated.calibration, path)
+    assert load_calibration(path) == calibrated.calibration
+    data = json.loads(path.read_text())
+
+    def broken(change) -> Path:
+        copy = json.loads(json.dumps(data))
+        change(copy)
+        path.write_text(json.dumps(copy))
+        return path
+
+    with pytest.raises(ConfigError, match="unknown key.*colour"):
+        load_calibration(broken(lambda d: d["mounting"].update(colour="red")))
+    with pytest.raises(ConfigError, match="version: file has version 99"):
+        load_calibration(broken(lambda d: d.update(version=99)))
+    with pytest.raises(ConfigError, match="speckle.shape_nu"):
+        load_calibration(broken(lambda d: d["effects"]["speckle"].update(shape_nu=-1.0)))
+    with pytest.raises(ConfigError, match="missing \\['water_column'\\]"):
+        load_calibration(broken(lambda d: d["effects"].pop("water_column")))
+    path.write_text("{not json")
+    with pytest.raises(ConfigError, match="not a JSON calibration file"):
+        load_calibration(path)
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_calibration(tmp_path / "absent.json")
+
+
+def test_too_few_frames_and_mixed_sensors_are_refused(recording) -> None:
+    with pytest.raises(ConfigError, match=f"at least {MIN_FRAMES} frames"):
+        calibrate(recording[:MIN_FRAMES - 1], "short", FAST)
+    wide = [f.replace(intensity=cv2.resize(f.intensity, (128, f.n_ranges)),
+                      azimuths_rad=np.linspace(-0.5, 0.5, 128)) for f in recording[:4]]
+    with pytest.raises(ConfigError, match="mixed sensors.*64 to 128 beams"):
+        calibrate(recording[4:] + wide, "mixed", FAST)
+
+
+def test_calibrated_frames_are_randomised_per_frame_with_exact_masks() -> None:
+    pairs = list(simulate_calibrated(truth(present=1.0), 4, seed=5))
+    frames, masks = [f for f, _ in pairs], [m for _, m in pairs]
+    assert all(f.intensity.dtype == np.uint8 and f.intensity.max() == 255 for f in frames)
+    assert len({f.meta["pose"]["yaw"] for f in frames}) == 4  # a new view every frame
+    assert all(m.shape == (160, 64) and m.max() == 1 for m in masks)  # the one target, id 1, in every frame
+    kinds = {f.meta["objects"][0]["kind"] for f in simulate_calibrated(truth(present=1.0), 12, seed=5)
+             for f in [f[0]]}
+    assert kinds <= {"sphere", "box", "barrel"} and len(kinds) >= 2
+    again = next(simulate_calibrated(truth(present=1.0), 1, seed=5))[0]
+    np.testing.assert_array_equal(again.intensity, frames[0].intensity)
+
+
+def test_simulate_cli_with_calibration_writes_frames_masks_and_honours_overrides(tmp_path: Path) -> None:
+    calib = tmp_path / "CALIB.json"
+    save_calibration(truth(present=1.0), calib)
+    out = tmp_path / "sim"
+    assert cli_main(["simulate", "--calibration", str(calib), "--n", "3", "--seed", "1", "--out", str(out),
+                     "--param", "speckle.shape_nu=3", "--quiet"]) == 0
+    frames = list(read_frames(out))
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert len(frames) == 3 and frames[0].intensity.shape == (160, 64)
+    assert len(list((out / "masks").glob("*.png"))) == 3 and len(manifest["objects"]) == 3
+    assert {e["name"]: e["params"] for e in manifest["effects"]}["speckle"]["shape_nu"] == 3
+    assert cli_main(["simulate", "--calibration", str(calib), "--scene", "seabed", "--n", "2", "--out",
+                     str(tmp_path / "scene"), "--quiet"]) == 0
+    assert len(list(read_frames(tmp_path / "scene"))) == 2
+    calib.write_text(json.dumps({**json.loads(calib.read_text()), "version": CALIBRATION_VERSION + 1}))
+    assert cli_main(["simulate", "--calibration", str(calib), "--n", "1", "--out", str(tmp_path / "x")]) == 2
+
+
+def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) -> None:
+    folder = tmp_path / "pngs"
+    folder.mkdir()
+    for i, frame in enumerate(recording[:MIN_FRAMES]):
+        cv2.imwrite(str(folder / f"rec_{i:03d}.png"), frame.intensity)
+    out = tmp_path / "CALIB.json"
+    assert cli_main(["calibrate", "--real", str(folder), "--out", str(out), "--sim-frames", "2", "--rounds", "1",
+                     "--effect-bootstrap", "0"]) == 0
+    calibration = load_calibration(out)
+    assert calibration.grid.bearing_source.startswith("default") and any("130" in n for n in calibration.notes)
+    page = out.with_suffix(".html").read_text()
+    assert "data:image/png;base64," in page and "height above seabed" in page
+    assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
