@@ -50,7 +50,14 @@ from sonar_realism.datasets import (
 )
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.io import read_frames
-from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, PerceptualConfig, PerceptualLoss, save_checkpoint
+from sonar_realism.models.cdfcvae import (
+    CDFCVAE,
+    CDFCVAEConfig,
+    PerceptualConfig,
+    PerceptualLoss,
+    load_checkpoint,
+    save_checkpoint,
+)
 from sonar_realism.models.speckle import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
@@ -293,6 +300,21 @@ class Trainer:
         if self.rank == 0:
             save_checkpoint(self.model, self.out / "cycle1.safetensors", self._checkpoint_info(),
                             self.cfg.half_precision_checkpoint)
+        self._start_cycle2()
+
+    def start_from_cycle1(self, path: str | Path) -> None:
+        """Take every weight (and the fitted texture) of a cycle-1 checkpoint of the same model configuration."""
+        model, info = load_checkpoint(path)
+        if to_dict(model.cfg) != to_dict(self.cfg.model):
+            raise ConfigError(f"--cycle1 {path}: its model configuration differs from this run's (config.model)")
+        self.model.load_state_dict({k: v.float() if v.is_floating_point() else v
+                                    for k, v in model.state_dict().items()})
+        record = info.get("early_stopping", {}).get("1")
+        if record:
+            self.stopping["1"] = EarlyStopping(**record)
+        self._start_cycle2()
+
+    def _start_cycle2(self) -> None:
         self.model.encoder_sim.load_state_dict(self.model.encoder_real.state_dict())
         self.cycle, self.best = 2, {}
         self.optimizer = self._make_optimizer()
@@ -400,17 +422,25 @@ class Trainer:
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,
         device: str = "auto", resume: bool = False, max_epochs_now: int | None = None,
-        progress: bool = True) -> dict[str, Any]:
+        progress: bool = True, cycle1: str | Path | None = None) -> dict[str, Any]:
     """Train (or resume) a run in `out`. `max_epochs_now` ends this call after that many epochs (a
-    time-sliced or pre-emptible job); `resume=True` continues from the state left behind.
+    time-sliced or pre-emptible job); `resume=True` continues from the state left behind. `cycle1`: a
+    checkpoint whose cycle 1 (the real-data VAE and its texture) is reused, so only cycle 2 runs: the way to
+    retarget a trained translator to another simulator, as cycle 1 never sees simulated frames.
     Returns {"finished": bool, ...early-stopping record when finished}."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     trainer = Trainer(cfg, out, pick_device(device), progress)
+    if resume and cycle1 is not None:
+        raise ConfigError("--cycle1 starts a run; --resume continues one: give one of them")
     if resume:
         if not (out / "state.json").is_file():
             raise ConfigError(f"--resume: {out} holds no training state (state.json)")
         trainer.load_state()
+    if cycle1 is not None:
+        if sim_dir is None:
+            raise ConfigError("--cycle1: reusing cycle 1 only makes sense with --sim for cycle 2")
+        trainer.start_from_cycle1(cycle1)
     (out / "config.json").write_text(json.dumps(to_dict(cfg), indent=2) + "\n")
     real = load_data(real_dir, cfg, by_recording=True)
     sim = load_data(sim_dir, cfg, by_recording=False) if sim_dir else None
@@ -455,6 +485,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
     parser.add_argument("--seed", type=int, help="default 0")
     parser.add_argument("--resume", action="store_true", help="continue the run left in --out")
+    parser.add_argument("--cycle1", help="cdfcvae: reuse this checkpoint's cycle 1 (the real-data VAE, e.g. "
+                                         "RUN/cycle1.safetensors) and run only cycle 2 on --sim")
     parser.add_argument("--config", help="JSON file of TrainConfig keys (model, perceptual, ...); unknown keys "
                                          "are rejected; flags given on the command line win")
 
@@ -484,7 +516,7 @@ def run(args: argparse.Namespace) -> int:
         return train(args)
     cfg = config_from_args(args)
     started = time.monotonic()
-    result = fit(cfg, args.real, args.sim, args.out, device=args.device, resume=args.resume)
+    result = fit(cfg, args.real, args.sim, args.out, device=args.device, resume=args.resume, cycle1=args.cycle1)
     if int(os.environ.get("RANK", 0)) == 0:  # under torchrun every rank gets here; one line is enough
         print(f"trained in {time.monotonic() - started:.0f} s; checkpoint {Path(args.out) / 'model.safetensors'}",
               file=sys.stderr)

@@ -1,6 +1,7 @@
 """Two-cycle cDFCVAE training on tiny data: loss goes down, early stopping, resume, CLI config."""
 
 import argparse
+import dataclasses
 import json
 
 import numpy as np
@@ -157,3 +158,24 @@ def test_texture_model_trains_on_the_chosen_recordings_and_fits_speckle_after_cy
     with pytest.raises(ConfigError, match="rec_z"):
         fit(TrainConfig(model=model, perceptual=TINY_LOSS, epochs1=1, real_recordings=("rec_z",)), real, None,
             tmp_path / "run2", device="cpu", progress=False)
+
+
+def test_cycle1_checkpoint_retargets_to_another_simulator_training_only_the_sim_encoder(data, tmp_path):
+    real, sim = data
+    first = tmp_path / "first"
+    fit(_cfg(epochs1=2, epochs2=1), real, sim, first, device="cpu", progress=False)
+    cycle1 = load_file(str(first / "cycle1.safetensors"))
+    out = tmp_path / "retarget"
+    result = fit(_cfg(epochs1=2, epochs2=2), real, sim, out, device="cpu", progress=False,
+                 cycle1=first / "cycle1.safetensors")
+    assert result["finished"]
+    history = json.loads((out / "state.json").read_text())["history"]
+    assert history["1"] == [] and len(history["2"]) == 2
+    retargeted = load_file(str(out / "model.safetensors"))
+    decoder = [k for k in cycle1 if k.startswith("decoder.")]
+    assert decoder and all(np.array_equal(cycle1[k].float().numpy(), retargeted[k].float().numpy()) for k in decoder)
+    assert any(not np.array_equal(cycle1[k].float().numpy(), retargeted[k].float().numpy())
+               for k in cycle1 if k.startswith("encoder_sim."))
+    with pytest.raises(ConfigError, match="model configuration"):
+        fit(dataclasses.replace(_cfg(epochs1=1, epochs2=1), model=dataclasses.replace(TINY_MODEL, latent_dim=6)),
+            real, sim, tmp_path / "other", device="cpu", progress=False, cycle1=first / "cycle1.safetensors")
