@@ -19,6 +19,7 @@ class SimSourceParams:
     rate_hz: float = 0.0     # 0 = as fast as the consumers take them
     sensor: str = "m1200d_1200khz"   # a name in sonar_realism.sim.SENSORS
     trajectory: Trajectory = Trajectory()  # [nodes.X.params.trajectory] kind = "circle", radius_m = 5, ...
+    calibration: str = ""    # a CALIB.json (`sonar-realism calibrate`) or "oculus" (shipped): that sensor's views
 
     def validate(self) -> None:
         if self.count < 0 or self.rate_hz < 0:
@@ -32,7 +33,8 @@ class SimSourceNode(Node):
 
     def configure(self) -> None:
         p: SimSourceParams = self.params
-        self.source = SimSource(p.scene, p.effects, p.count, p.seed, p.rate_hz, p.sensor, p.trajectory)
+        self.source = SimSource(p.scene, p.effects, p.count, p.seed, p.rate_hz, p.sensor, p.trajectory,
+                                calibration=p.calibration)
         self._pending = None
 
     def produce(self) -> float | None:

@@ -147,6 +147,18 @@ def test_sim_source_trajectory_parameters_change_what_the_sonar_sees():
         SimSource(count=1, trajectory=Trajectory("spiral"))
 
 
+def test_sim_source_with_the_shipped_calibration_gives_that_sensors_views_each_different():
+    source = SimSource(count=2, effects="all", calibration="oculus")
+    first, second = source.next()[1], source.next()[1]
+    assert first.meta["source"] == "sim-calibrated" and first.intensity.dtype == np.uint8
+    assert first.intensity.shape[1] == 256 and first.seq == 0 and second.seq == 1
+    assert first.intensity.shape != second.intensity.shape or not np.array_equal(first.intensity, second.intensity)
+    with pytest.raises(ConfigError, match="scene, sensor and trajectory"):
+        SimSource(count=1, scene="organic", calibration="oculus")
+    with pytest.raises(ConfigError, match="nowhere.json"):
+        SimSource(count=1, calibration="nowhere.json")
+
+
 # ---- recorder ----------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", ["frames", "frames.npz"])
 def test_recording_is_lossless_and_draws_a_contact_sheet(tmp_path, name):

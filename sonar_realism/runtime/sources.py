@@ -122,17 +122,28 @@ class Trajectory:
         return dataclasses.replace(scene, trajectory=path, trajectory_kind=self.kind)
 
 
+def _calibrated_passes(path: str, effects: str) -> Callable[[int, int], Iterator[tuple[SonarImage, Any]]]:
+    from sonar_realism.sim.calibrated import calibrated_chain, simulate_calibrated
+    from sonar_realism.sim.calibration import load_calibration
+
+    calibration = load_calibration(path)
+    chain = calibrated_chain(calibration, effects)
+    return lambda n, pass_seed: simulate_calibrated(calibration, n, pass_seed, chain)
+
+
 class SimSource:
     """The built-in simulator as a live source: `count` frames (0 = endless) at `rate_hz` (0 = as fast as
     consumers take them), each stamped with the wall clock when made and numbered from 0.
 
     An endless run simulates passes of `chunk` frames along the trajectory; pass k uses seed + k, so the
-    per-ping noise differs between passes while the world (built from `seed`) stays the same.
+    per-ping noise differs between passes while the world (built from `seed`) stays the same. With a
+    `calibration` (a CALIB.json from `sonar-realism calibrate`) the frames are that sensor's, each a new
+    randomised view, and `effects` picks among its fitted effects.
     """
 
     def __init__(self, scene: str = "default", effects: str = "none", count: int = 16, seed: int = 0,
                  rate_hz: float = 0.0, sensor: str = "m1200d_1200khz", trajectory: Trajectory | None = None,
-                 chunk: int = 64, clock: Clock = time.monotonic) -> None:
+                 chunk: int = 64, clock: Clock = time.monotonic, calibration: str = "") -> None:
         from sonar_realism.sim import SENSORS, simulate  # the simulator is imported only by sim sources
         from sonar_realism.sim.scene import build_scene
 
@@ -142,10 +153,17 @@ class SimSource:
             raise ConfigError(f"sensor: {sensor!r} is not one of {', '.join(SENSORS)}")
         trajectory = trajectory or Trajectory()
         trajectory.validate()
-        self._simulate = simulate
-        self.sensor = SENSORS[sensor]
-        self.world = trajectory.apply(build_scene(scene, seed, self.sensor.max_range_m))
-        self.effects, self.count, self.seed, self.rate_hz = effects, count, seed, rate_hz
+        self._passes: Callable[[int, int], Iterator[tuple[SonarImage, Any]]]
+        if calibration:
+            if scene != "default" or sensor != "m1200d_1200khz" or trajectory != Trajectory():
+                raise ConfigError("calibration: the calibrated sensor makes its own views (grid, mounting, "
+                                  "targets); leave scene, sensor and trajectory unset")
+            self._passes = _calibrated_passes(calibration, effects)
+        else:
+            world = trajectory.apply(build_scene(scene, seed, SENSORS[sensor].max_range_m))
+            self._passes = lambda n, pass_seed: simulate(world, effects=effects, n=n, seed=pass_seed,
+                                                         sensor=SENSORS[sensor])
+        self.count, self.seed, self.rate_hz = count, seed, rate_hz
         self.chunk = chunk
         self.clock = clock
         self.made = 0
@@ -160,8 +178,7 @@ class SimSource:
         item = next(self._batch, None) if self._batch is not None else None
         if item is None:
             n = self.count if self.count else self.chunk
-            self._batch = iter(self._simulate(self.world, effects=self.effects, n=n, seed=self.seed + self._pass,
-                                              sensor=self.sensor))
+            self._batch = self._passes(n, self.seed + self._pass)
             self._pass += 1
             item = next(self._batch, None)
             if item is None:

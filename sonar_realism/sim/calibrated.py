@@ -19,7 +19,7 @@ import numpy as np
 
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.calibration import Calibration, GridMode
-from sonar_realism.sim.effects import Effect, apply_effects
+from sonar_realism.sim.effects import Effect, apply_effects, resolve_effects
 from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
 from sonar_realism.sim.sensor import SensorConfig
@@ -165,6 +165,14 @@ def _rescale_to_max(frame: SonarImage) -> SonarImage:
         scaled = cv2.convertScaleAbs(image, alpha=255.0 / peak) if peak > 0 else frame.intensity
         return frame.replace(intensity=scaled)
     return frame.replace(intensity=image / peak if peak > 0 else image)
+
+
+def calibrated_chain(calibration: Calibration, effects: str | Sequence[str] = "all",
+                     params: dict[str, dict[str, Any]] | None = None) -> list[Effect]:
+    """The calibrated effects named by `effects` ("all", "none", "a,b" or names), in pipeline order, with
+    `params` overriding fitted values by name."""
+    fitted = {effect.name: effect for effect in calibration.effect_chain()}
+    return resolve_effects([fitted[effect.name] for effect in resolve_effects(effects)], params)
 
 
 def simulate_calibrated(calibration: Calibration, n: int, seed: int = 0, chain: Sequence[Effect] | None = None,

@@ -178,9 +178,15 @@ def save_calibration(calibration: Calibration, path: str | Path) -> None:
     Path(path).write_text(json.dumps(to_dict(calibration), indent=1) + "\n", encoding="utf-8")
 
 
+# Calibrations shipped with the package, by name: `oculus` is the real Oculus M1200d set's fit recording
+# (Oculus_20250805_173650), made by `sonar-realism calibrate --match Oculus_20250805_173650`.
+SHIPPED_CALIBRATIONS = {"oculus": Path(__file__).resolve().parents[1] / "assets" / "oculus_calibration.json"}
+
+
 def load_calibration(path: str | Path) -> Calibration:
-    """Read and validate CALIB.json; ConfigError naming the file and the field on anything wrong."""
-    path = Path(path)
+    """Read and validate CALIB.json (or a name in SHIPPED_CALIBRATIONS); ConfigError naming the file and the
+    field on anything wrong."""
+    path = SHIPPED_CALIBRATIONS.get(str(path), Path(path))
     try:
         data: Any = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:

@@ -32,7 +32,7 @@ from sonar_realism.config import to_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import write_frames
-from sonar_realism.sim.calibrated import finish, sensor_for, simulate_calibrated
+from sonar_realism.sim.calibrated import calibrated_chain, finish, sensor_for, simulate_calibrated
 from sonar_realism.sim.calibration import load_calibration
 from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
 from sonar_realism.sim.scene import SCENES, build_scene
@@ -43,7 +43,8 @@ STORAGE_DTYPES = ("float32", "uint16")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--calibration", help="CALIB.json from `sonar-realism calibrate`: frames of that sensor")
+    parser.add_argument("--calibration", help="CALIB.json from `sonar-realism calibrate` (or `oculus`, the shipped "
+                                              "calibration of the real Oculus set): frames of that sensor")
     parser.add_argument("--scene", help=f"scene name ({', '.join(SCENES)}); default: default, or with --calibration a "
                                         "new randomised view per frame")
     parser.add_argument("--effects", help=f"none, all, or a comma list of: {', '.join(PIPELINE_ORDER)} (default: none; "
@@ -141,9 +142,7 @@ def run_calibrated(args: argparse.Namespace) -> int:
     if args.scene is not None and args.scene not in SCENES:
         raise ConfigError(f"unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}")
     params = parse_params(args.param)
-    calibrated = {e.name: e for e in calibration.effect_chain()}
-    wanted = resolve_effects(args.effects or "all")  # names checked against the catalogue
-    chain = resolve_effects([calibrated[e.name] for e in wanted], params)
+    chain = calibrated_chain(calibration, args.effects or "all", params)
     out = Path(args.out)
     (out / "masks").mkdir(parents=True, exist_ok=True)
     objects: list[list[dict[str, Any]]] = []
