@@ -45,7 +45,7 @@ class FakeClock:
 
 @pytest.fixture(scope="module")
 def translator(tmp_path_factory):
-    from sonar_realism.translate import Translator
+    from sonar_realism.models.translate import Translator
 
     path = tiny_checkpoint(tmp_path_factory.mktemp("ckpt"))
     return Translator.from_checkpoint(path, device="cpu"), path

@@ -9,7 +9,7 @@ from sonar_realism.errors import ConfigError, FormatError, FrameError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.io import read_frames, write_frames
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
-from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator, add_arguments, run
+from sonar_realism.models.translate import DEFAULT_CHECKPOINT, Translator, add_arguments, run
 
 TINY = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8, 16), latent_dim=8, bottleneck_hw=(2, 2), skips=2)
 

@@ -47,13 +47,13 @@ def load_translator(spec: str, device: str) -> tuple[str, Translator, str]:
 
     name, _, path = spec.rpartition("=")
     if path == "default":
-        from sonar_realism.translate import DEFAULT_CHECKPOINT
+        from sonar_realism.models.translate import DEFAULT_CHECKPOINT
         path = str(DEFAULT_CHECKPOINT)
     if not Path(path).exists():
         raise ConfigError(f"--model: {path}: no such checkpoint")
     if is_cyclegan_checkpoint(path):
         return name or "cyclegan", CycleGANTranslator.from_checkpoint(path, device=device), path
-    from sonar_realism.translate import Translator as CDFCVAETranslator
+    from sonar_realism.models.translate import Translator as CDFCVAETranslator
     return name or "cdfcvae", CDFCVAETranslator.from_checkpoint(path, device=device), path
 
 

@@ -21,10 +21,10 @@ from safetensors.torch import load_file
 from torch import nn
 
 from sonar_realism.config import from_dict
-from sonar_realism.datasets import to_model_grid
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_like, resample_to_grid
+from sonar_realism.models.datasets import to_model_grid
 
 CHECKPOINT_KIND = "cyclegan"
 

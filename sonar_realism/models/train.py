@@ -36,7 +36,17 @@ from torch import nn
 from tqdm import tqdm
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
-from sonar_realism.datasets import (
+from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.io import read_frames
+from sonar_realism.models.cdfcvae import (
+    CDFCVAE,
+    CDFCVAEConfig,
+    PerceptualConfig,
+    PerceptualLoss,
+    load_checkpoint,
+    save_checkpoint,
+)
+from sonar_realism.models.datasets import (
     GridFrames,
     Normalisation,
     batches,
@@ -47,16 +57,6 @@ from sonar_realism.datasets import (
     recording_sources,
     split_by_recording,
     to_model_grid,
-)
-from sonar_realism.errors import ConfigError, FormatError
-from sonar_realism.io import read_frames
-from sonar_realism.models.cdfcvae import (
-    CDFCVAE,
-    CDFCVAEConfig,
-    PerceptualConfig,
-    PerceptualLoss,
-    load_checkpoint,
-    save_checkpoint,
 )
 from sonar_realism.models.speckle import fit_speckle
 
@@ -508,7 +508,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def run(args: argparse.Namespace) -> int:
     if args.model == "cyclegan":
-        from sonar_realism.train_cyclegan import train
+        from sonar_realism.models.train_cyclegan import train
 
         args.batch_size = args.batch_size or 1
         args.grid = args.grid or "128x128"

@@ -21,7 +21,6 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
-from sonar_realism.datasets import load_grid_frames
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.models.cyclegan import (
     CHECKPOINT_KIND,
@@ -31,6 +30,7 @@ from sonar_realism.models.cyclegan import (
     pick_device,
     resolve_checkpoint,
 )
+from sonar_realism.models.datasets import load_grid_frames
 
 
 def cyclegan_grid(text: str) -> tuple[int, int]:

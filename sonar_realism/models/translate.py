@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from sonar_realism.datasets import from_model_grid, to_model_grid
 from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
+from sonar_realism.models.datasets import from_model_grid, to_model_grid
 
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "assets" / "cdfcvae_default.safetensors"
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "cdfcvae_default.safetensors"
 # Frames encoded per forward pass: bounds memory at n samples each (decodes = chunk × n).
 _FRAMES_PER_PASS = 16
 
