@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.runtime.node import Node
-from sonar_realism.runtime.translation import TranslationStage, file_sha256
+from sonar_realism.runtime.translation import TranslationStage
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class TranslatorNode(Node):
         translator = Translator.from_checkpoint(checkpoint, device=p.device)
         self.stage = TranslationStage(translator, n=p.n, temperature=p.temperature,
                                       seed=None if p.seed < 0 else p.seed,
-                                      checkpoint_sha256=file_sha256(checkpoint), node=self.name)
+                                      checkpoint_sha256=translator.checkpoint_sha256, node=self.name)
         self.batch_size = p.batch
 
     def process(self, input_name: str, frames: list[SonarImage]) -> None:

@@ -58,6 +58,7 @@ from sonar_realism.models.datasets import (
     split_by_recording,
     to_model_grid,
 )
+from sonar_realism.models.device import pick_device
 from sonar_realism.models.speckle import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
@@ -134,16 +135,6 @@ class EarlyStopping:
 
 
 # --- one run -------------------------------------------------------------------------------------------------------
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("--device cuda: CUDA is not available on this machine")
-    if name not in ("cpu", "cuda"):
-        raise ConfigError(f"--device {name!r}: choose auto, cpu or cuda")
-    return torch.device(name)
-
 
 @dataclass
 class Data:

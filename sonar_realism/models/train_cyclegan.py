@@ -27,10 +27,10 @@ from sonar_realism.models.cyclegan import (
     CycleGAN,
     CycleGANConfig,
     ImagePool,
-    pick_device,
     resolve_checkpoint,
 )
 from sonar_realism.models.datasets import load_grid_frames
+from sonar_realism.models.device import pick_device
 
 
 def cyclegan_grid(text: str) -> tuple[int, int]:
