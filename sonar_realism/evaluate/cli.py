@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-real", type=int, default=None, help="use at most this many real frames")
     parser.add_argument("--cnn-epochs", type=int, default=RealismCNNConfig.epochs, help="realism CNN epochs")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda)")
+    parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda or cuda:N)")
 
 
 def _translator_from_spec(spec: str, device: str) -> tuple[str, Translator, str]:

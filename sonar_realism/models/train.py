@@ -473,7 +473,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=int, help="default: 16 (cdfcvae), 1 (cyclegan)")
     parser.add_argument("--grid", help="model grid RANGESxBEAMS (default 128x128)")
     parser.add_argument("--max-frames", type=int, help="use at most this many frames of each set")
-    parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
     parser.add_argument("--seed", type=int, help="default 0")
     parser.add_argument("--resume", action="store_true", help="continue the run left in --out")
     parser.add_argument("--cycle1", help="cdfcvae: reuse this checkpoint's cycle 1 (the real-data VAE, e.g. "
