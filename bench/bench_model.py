@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sonar_realism.data import real_oculus_dir  # noqa: E402
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges  # noqa: E402
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint  # noqa: E402
-from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # noqa: E402
+from sonar_realism.models.translate import DEFAULT_CHECKPOINT, Translator  # noqa: E402
 
 GRIDS = ((128, 128), (512, 256))  # (n_ranges, n_beams)
 SAMPLES = (1, 4, 16)
@@ -120,8 +120,8 @@ def diversity(real: str | None = None, skips_options: tuple[int, ...] = (0, 2, 3
     frame at temperature 1. Reports the mean per-pixel std across samples and its ratio to the pixel std
     of the validation images themselves (1 = samples as different as different frames)."""
     real = str(real_oculus_dir()) if real is None else real
-    from sonar_realism.datasets import load_grid_frames
-    from sonar_realism.train import TrainConfig, fit
+    from sonar_realism.models.datasets import load_grid_frames
+    from sonar_realism.models.train import TrainConfig, fit
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -407,7 +407,7 @@ def row(n: int, transport: str, compute: Series, latency: Series, throughput: Se
 
 
 def run(frames: int = DEFAULT_FRAMES, device: str = "auto", samples: Sequence[int] = SAMPLES) -> list[dict]:
-    from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when measuring
+    from sonar_realism.models.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when measuring
 
     translator = Translator.from_checkpoint(DEFAULT_CHECKPOINT, device=device)
     pool = simulated_frames(POOL)

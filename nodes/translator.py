@@ -7,12 +7,12 @@ from dataclasses import dataclass
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.runtime.node import Node
-from sonar_realism.runtime.translation import TranslationStage, file_sha256
+from sonar_realism.runtime.translation import TranslationStage
 
 
 @dataclass(frozen=True)
 class TranslatorParams:
-    checkpoint: str = ""      # "" = the shipped checkpoint (sonar_realism.translate.DEFAULT_CHECKPOINT)
+    checkpoint: str = ""      # "" = the shipped checkpoint (sonar_realism.models.translate.DEFAULT_CHECKPOINT)
     n: int = 4                # samples per input frame
     temperature: float = 1.0  # latent scale: 0 = the mean image, 1 = the trained spread
     seed: int = -1            # -1 = fresh randomness; >= 0 = reproducible (seed + seq of the batch's first frame)
@@ -32,14 +32,14 @@ class TranslatorNode(Node):
     OUTPUTS = {"frames": "polar_samples"}
 
     def configure(self) -> None:
-        from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when this node runs
+        from sonar_realism.models.translate import DEFAULT_CHECKPOINT, Translator  # torch: only when this node runs
 
         p: TranslatorParams = self.params
         checkpoint = p.checkpoint or str(DEFAULT_CHECKPOINT)
         translator = Translator.from_checkpoint(checkpoint, device=p.device)
         self.stage = TranslationStage(translator, n=p.n, temperature=p.temperature,
                                       seed=None if p.seed < 0 else p.seed,
-                                      checkpoint_sha256=file_sha256(checkpoint), node=self.name)
+                                      checkpoint_sha256=translator.checkpoint_sha256, node=self.name)
         self.batch_size = p.batch
 
     def process(self, input_name: str, frames: list[SonarImage]) -> None:

@@ -35,7 +35,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 from sonar_realism.data import OCULUS_FIT_RECORDING, OCULUS_HELD_OUT_RECORDING, real_aris_dir, real_oculus_dir  # noqa: E402
-from sonar_realism.datasets import to_model_grid  # noqa: E402
 from sonar_realism.evaluate.statistics import _detrend, lag_correlation  # noqa: E402
 from sonar_realism.evaluate.texture import speckle_statistics  # noqa: E402
 from sonar_realism.evaluate.two_sample import (  # noqa: E402
@@ -44,6 +43,7 @@ from sonar_realism.evaluate.two_sample import (  # noqa: E402
     texture_two_sample_test,
 )
 from sonar_realism.frames import SonarImage  # noqa: E402
+from sonar_realism.models.datasets import to_model_grid  # noqa: E402
 from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, load_recording  # noqa: E402
 from sonar_realism.sim.calibrated import simulate_calibrated  # noqa: E402
 from sonar_realism.sim.calibration import Calibration, load_calibration, save_calibration  # noqa: E402

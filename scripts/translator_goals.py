@@ -38,7 +38,6 @@ from sonar_realism.data import (  # noqa: E402
     OCULUS_HELD_OUT_RECORDING,
     oculus_recording_files,
 )
-from sonar_realism.datasets import normalise, to_model_grid  # noqa: E402
 from sonar_realism.evaluate.diversity import sample_diversity  # noqa: E402
 from sonar_realism.evaluate.structure import edge_ssim, mask_iou, mask_to_grid  # noqa: E402
 from sonar_realism.evaluate.texture import grain, speckle_statistics  # noqa: E402
@@ -49,7 +48,8 @@ from sonar_realism.evaluate.two_sample import (  # noqa: E402
 )
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.io import read_frames  # noqa: E402
-from sonar_realism.translate import load_translator  # noqa: E402
+from sonar_realism.models.datasets import normalise, to_model_grid  # noqa: E402
+from sonar_realism.models.translate import load_translator  # noqa: E402
 
 GRID = (128, 128)
 RAW = "raw sim"

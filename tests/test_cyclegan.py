@@ -19,7 +19,7 @@ from sonar_realism.models.cyclegan import (
     ResnetGenerator,
     is_cyclegan_checkpoint,
 )
-from sonar_realism.train_cyclegan import lr_factor
+from sonar_realism.models.train_cyclegan import lr_factor
 
 TINY = CycleGANConfig(ngf=4, ndf=4, n_blocks=1)
 

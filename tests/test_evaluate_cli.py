@@ -1,12 +1,17 @@
-"""`sonar-realism evaluate` end to end on tiny data: a tiny CycleGAN, two sim categories, the report files."""
+"""`sonar-realism evaluate` end to end on tiny data: a tiny CycleGAN, two sim categories, the report files; and
+how a --model argument names its column."""
 
 import json
 
 import numpy as np
+import pytest
 
 from sonar_realism.cli import main
+from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.cli import _translator_from_spec
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
+from sonar_realism.models.translate import Translator
 
 
 def frames(n: int, seed: int, speckle: bool, scene: str | None = None) -> list[SonarImage]:
@@ -67,3 +72,16 @@ def test_evaluate_names_a_missing_folder(tmp_path, capsys):
     code = main(["evaluate", "--real", str(tmp_path / "nowhere"), "--sim", str(tmp_path), "--out", str(tmp_path / "o")])
     assert code == 2
     assert "nowhere" in capsys.readouterr().err
+
+
+def test_evaluate_names_a_model_column_by_its_kind_unless_told(tmp_path):
+    from test_nodes import tiny_checkpoint
+    from test_translate import tiny_cyclegan
+
+    checkpoint = tiny_checkpoint(tmp_path)
+    assert _translator_from_spec(str(checkpoint), "cpu")[0] == "cdfcvae"
+    assert _translator_from_spec(str(tiny_cyclegan(tmp_path / "cg")), "cpu")[0] == "cyclegan"
+    name, translator, path = _translator_from_spec(f"mine={checkpoint}", "cpu")
+    assert (name, path) == ("mine", str(checkpoint)) and isinstance(translator, Translator)
+    with pytest.raises(ConfigError, match="no such checkpoint"):
+        _translator_from_spec(str(tmp_path / "absent.safetensors"), "cpu")

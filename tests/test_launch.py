@@ -3,6 +3,7 @@ and the `sonar-realism launch` CLI end to end in process mode (incl. SIGINT: cle
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
@@ -203,6 +204,8 @@ def test_cli_runs_the_demo_in_process_mode_end_to_end(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     translated = list(read_frames(run / "translated"))
     assert [f.seq for f in translated] == [0, 1] and translated[0].intensity.shape[0] == 2
+    sha256 = hashlib.sha256(Path(checkpoint).read_bytes()).hexdigest()
+    assert [f.meta["provenance"]["checkpoint_sha256"] for f in translated] == [sha256, sha256]
     assert (run / "translated_contact_sheet.png").stat().st_size > 0
     assert len(list(read_frames(run / "simulated"))) == 2
     page = (run / "demo.html").read_text()

@@ -4,6 +4,9 @@ shipped one so the tests take seconds."""
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -14,7 +17,7 @@ from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import read_frames, write_frames
 from sonar_realism.runtime.recording import Recording
 from sonar_realism.runtime.sources import ReplaySource, SimSource, Trajectory, replay_offsets
-from sonar_realism.runtime.translation import TranslationStage, file_sha256
+from sonar_realism.runtime.translation import TranslationStage
 
 
 def tiny_checkpoint(folder) -> str:
@@ -45,7 +48,7 @@ class FakeClock:
 
 @pytest.fixture(scope="module")
 def translator(tmp_path_factory):
-    from sonar_realism.translate import Translator
+    from sonar_realism.models.translate import Translator
 
     path = tiny_checkpoint(tmp_path_factory.mktemp("ckpt"))
     return Translator.from_checkpoint(path, device="cpu"), path
@@ -54,7 +57,10 @@ def translator(tmp_path_factory):
 # ---- translator --------------------------------------------------------------------------------------
 def test_translation_keeps_input_identity_and_records_provenance(translator):
     model, path = translator
-    stage = TranslationStage(model, n=3, temperature=1.0, seed=10, checkpoint_sha256=file_sha256(path), node="tr")
+    sha256 = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    assert model.checkpoint_sha256 == sha256  # the loaded translator carries its hash; the node stamps it
+    stage = TranslationStage(model, n=3, temperature=1.0, seed=10, checkpoint_sha256=model.checkpoint_sha256,
+                             node="tr")
     inputs = [frame(5, 0.0), frame(6, 0.1)]
     outputs = stage(inputs)
     assert [o.seq for o in outputs] == [5, 6]
@@ -64,7 +70,7 @@ def test_translation_keeps_input_identity_and_records_provenance(translator):
         assert 0.0 <= out.intensity.min() and out.intensity.max() <= 1.0
         prov = out.meta["provenance"]
         assert prov["input_seq"] == source.seq and prov["input_stamp_ns"] == source.stamp_ns
-        assert prov["checkpoint_sha256"] == file_sha256(path) and prov["node"] == "tr"
+        assert prov["checkpoint_sha256"] == sha256 and prov["node"] == "tr"
         assert prov["seed"] == 10 + 5 and out.meta["source"] == "test"
     assert stage.last_ms > 0
 

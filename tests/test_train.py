@@ -9,12 +9,12 @@ import pytest
 from safetensors.torch import load_file
 
 from sonar_realism.config import from_dict
-from sonar_realism.datasets import load_grid_frames, split_by_recording
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.models.cdfcvae import CDFCVAEConfig, PerceptualConfig, load_checkpoint
-from sonar_realism.train import EarlyStopping, TrainConfig, add_arguments, config_from_args, fit
+from sonar_realism.models.datasets import load_grid_frames, split_by_recording
+from sonar_realism.models.train import EarlyStopping, TrainConfig, add_arguments, config_from_args, fit
 
 TINY_MODEL = CDFCVAEConfig(grid=(16, 16), widths=(4, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0)
 TINY_LOSS = PerceptualConfig(layers=("relu1_1",), layer_weights=(1.0,), weights="random")

@@ -1,6 +1,9 @@
 """Translator: n seeded samples per frame on the input's own geometry; the translate command."""
 
 import argparse
+import hashlib
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,7 +12,7 @@ from sonar_realism.errors import ConfigError, FormatError, FrameError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.io import read_frames, write_frames
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
-from sonar_realism.translate import DEFAULT_CHECKPOINT, Translator, add_arguments, run
+from sonar_realism.models.translate import DEFAULT_CHECKPOINT, Translator, add_arguments, load_translator, run
 
 TINY = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8, 16), latent_dim=8, bottleneck_hw=(2, 2), skips=2)
 
@@ -153,3 +156,34 @@ def test_texture_model_samples_carry_speckle_and_temperature_zero_gives_the_mean
     again = translator.translate(frames, n=3, seed=5)
     np.testing.assert_array_equal(again[1].intensity, speckled[1].intensity)
     assert np.abs(translator.translate(frames, n=3, seed=6)[1].intensity - speckled[1].intensity).mean() > 0.01
+
+
+def tiny_cyclegan(folder):
+    import torch
+    from safetensors.torch import save_file
+
+    from sonar_realism.models.cyclegan import CycleGAN, CycleGANConfig
+
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(0)
+    model = CycleGAN(CycleGANConfig(ngf=4, ndf=4, n_blocks=1))
+    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(folder / "cyclegan.safetensors"))
+    (folder / "cyclegan.json").write_text(json.dumps({"model": "cyclegan", "config": {"ngf": 4, "ndf": 4,
+                                                                                       "n_blocks": 1},
+                                                      "grid": [32, 32]}))
+    return folder
+
+
+def test_one_loader_tells_a_cdfcvae_from_a_cyclegan_checkpoint(checkpoint, tmp_path):
+    from sonar_realism.models.cyclegan import CycleGANTranslator
+
+    cdfcvae = load_translator(checkpoint, "cpu")
+    assert isinstance(cdfcvae, Translator)
+    assert cdfcvae.checkpoint_sha256 == hashlib.sha256(Path(checkpoint).read_bytes()).hexdigest()
+    cyclegan = load_translator(tiny_cyclegan(tmp_path), "cpu")
+    assert isinstance(cyclegan, CycleGANTranslator) and cyclegan.grid == (32, 32)
+    assert cyclegan.translate([_frame()], n=2)[0].intensity.shape == (2, 50, 40)
+    for path in (checkpoint, tmp_path):
+        with pytest.raises(ConfigError, match="device 'tpu'"):
+            load_translator(path, "tpu")
+

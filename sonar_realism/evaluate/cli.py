@@ -38,23 +38,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-real", type=int, default=None, help="use at most this many real frames")
     parser.add_argument("--cnn-epochs", type=int, default=RealismCNNConfig.epochs, help="realism CNN epochs")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda)")
+    parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda or cuda:N)")
 
 
-def load_translator(spec: str, device: str) -> tuple[str, Translator, str]:
-    """(column name, translator, checkpoint path) of a --model argument."""
-    from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
+def _translator_from_spec(spec: str, device: str) -> tuple[str, Translator, str]:
+    """(column name, translator, checkpoint path) of a --model argument: [NAME=]CKPT, CKPT may be "default"."""
+    from sonar_realism.models.cyclegan import CycleGANTranslator
+    from sonar_realism.models.translate import DEFAULT_CHECKPOINT, load_translator
 
     name, _, path = spec.rpartition("=")
     if path == "default":
-        from sonar_realism.translate import DEFAULT_CHECKPOINT
         path = str(DEFAULT_CHECKPOINT)
     if not Path(path).exists():
         raise ConfigError(f"--model: {path}: no such checkpoint")
-    if is_cyclegan_checkpoint(path):
-        return name or "cyclegan", CycleGANTranslator.from_checkpoint(path, device=device), path
-    from sonar_realism.translate import Translator as CDFCVAETranslator
-    return name or "cdfcvae", CDFCVAETranslator.from_checkpoint(path, device=device), path
+    translator = load_translator(path, device)
+    return name or ("cyclegan" if isinstance(translator, CycleGANTranslator) else "cdfcvae"), translator, path
 
 
 def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
@@ -87,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
                                      "cnn": {"grid": list(grid), "epochs": args.cnn_epochs}})
     translators, paths = {}, {}
     for spec in args.model:
-        name, translator, path = load_translator(spec, args.device)
+        name, translator, path = _translator_from_spec(spec, args.device)
         if name in translators:
             name = f"{name}-{Path(path).stem}"
         translators[name], paths[name] = translator, path

@@ -20,7 +20,6 @@ import numpy as np
 from tqdm import tqdm
 
 from sonar_realism.config import to_dict
-from sonar_realism.datasets import normalise, to_model_grid
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.diversity import sample_diversity
 from sonar_realism.evaluate.kid import kernel_inception_distance
@@ -38,6 +37,7 @@ from sonar_realism.evaluate.texture import (
 )
 from sonar_realism.evaluate.two_sample import TextureTestConfig, classifier_two_sample_test, texture_two_sample_test
 from sonar_realism.frames import SonarImage
+from sonar_realism.models.datasets import normalise, to_model_grid
 from sonar_realism.models.realism_cnn import RealismCNNConfig, embeddings, realism_scores, train_classifier
 
 RAW_SIM = "raw sim"

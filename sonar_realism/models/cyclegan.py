@@ -21,10 +21,11 @@ from safetensors.torch import load_file
 from torch import nn
 
 from sonar_realism.config import from_dict
-from sonar_realism.datasets import to_model_grid
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_like, resample_to_grid
+from sonar_realism.models.datasets import to_model_grid
+from sonar_realism.models.device import pick_device
 
 CHECKPOINT_KIND = "cyclegan"
 
@@ -196,12 +197,6 @@ def is_cyclegan_checkpoint(path: str | Path) -> bool:
         return json.loads(meta_path.read_text()).get("model") == CHECKPOINT_KIND
     except (OSError, ValueError, AttributeError):
         return False
-
-
-def pick_device(device: str) -> torch.device:
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
 
 
 class CycleGANTranslator:

@@ -4,7 +4,7 @@
 the input has one channel instead of the paper's three copies of a colour-mapped image. The score of an
 image is the softmax probability of the "real" output (≈1: looks real). Real frames, raw simulation and
 translator outputs are compared on exactly the same footing: images arrive as arrays already on the model grid
-(`sonar_realism.datasets.to_model_grid`, the same preprocessing the cDFCVAE trains on).
+(`sonar_realism.models.datasets.to_model_grid`, the same preprocessing the cDFCVAE trains on).
 """
 
 from __future__ import annotations

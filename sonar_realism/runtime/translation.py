@@ -3,10 +3,8 @@ provenance (which input, which checkpoint, which seed) so that any output can be
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any, Protocol
 
 from sonar_realism.frames import SonarImage
@@ -15,14 +13,6 @@ from sonar_realism.frames import SonarImage
 class SupportsTranslate(Protocol):
     def translate(self, frames: Sequence[SonarImage], n: int, temperature: float = 1.0,
                   seed: int | None = None) -> list[SonarImage]: ...
-
-
-def file_sha256(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 class TranslationStage:

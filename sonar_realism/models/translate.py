@@ -22,12 +22,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from sonar_realism.datasets import from_model_grid, to_model_grid
 from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
+from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
+from sonar_realism.models.datasets import from_model_grid, to_model_grid
+from sonar_realism.models.device import pick_device
 
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "assets" / "cdfcvae_default.safetensors"
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "cdfcvae_default.safetensors"
 # Frames encoded per forward pass: bounds memory at n samples each (decodes = chunk × n).
 _FRAMES_PER_PASS = 16
 
@@ -40,21 +42,15 @@ class Translator:
         self.info = info
         self.device = device
         self.checkpoint = checkpoint
-        self.checkpoint_sha256 = file_sha256(checkpoint)[:16]
+        # Hashed here, once: the translator node stamps every output with it instead of reading the file again.
+        self.checkpoint_sha256 = file_sha256(checkpoint)
         self.normalisation = info.get("normalisation", "frame_max")
         if device.type == "cuda":
             self.model = self.model.to(memory_format=torch.channels_last)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path = DEFAULT_CHECKPOINT, device: str = "auto") -> Translator:
-        if device == "auto":
-            chosen = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-        elif device in ("cpu", "cuda"):
-            if device == "cuda" and not torch.cuda.is_available():
-                raise ConfigError("device cuda: CUDA is not available on this machine")
-            chosen = torch.device(device)
-        else:
-            raise ConfigError(f"device {device!r}: choose auto, cpu or cuda")
+        chosen = pick_device(device)
         model, info = load_checkpoint(path)
         return cls(model, info, Path(path), chosen)
 
@@ -72,7 +68,7 @@ class Translator:
         seed = secrets.randbits(63) if seed is None else int(seed)
         generator = torch.Generator(device=self.device).manual_seed(seed)
         provenance = {"model": "cdfcvae", "checkpoint": self.checkpoint.name,
-                      "checkpoint_sha256": self.checkpoint_sha256, "temperature": float(temperature),
+                      "checkpoint_sha256": self.checkpoint_sha256[:16], "temperature": float(temperature),
                       "seed": seed, "n_samples": n}
         # Speckle is sampled on the CPU at each frame's own resolution from a generator of its own, so a seeded
         # call gives the same texture on any device. Temperature 0 asks for the posterior mean: no speckle.
@@ -114,10 +110,9 @@ class Translator:
         return frame.replace(intensity=intensity, intensity_scale=1.0, meta=meta)
 
 
-def load_translator(path: str | Path, device: str = "auto") -> Any:
-    """The translator a checkpoint asks for: the cDFCVAE, or the CycleGAN baseline (same `.translate`)."""
-    from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
-
+def load_translator(path: str | Path, device: str = "auto") -> Translator | CycleGANTranslator:
+    """The translator a checkpoint asks for: the cDFCVAE, or the CycleGAN baseline (same `.translate`). The one
+    loader that tells the two apart; `translate`, `evaluate` and the scripts all load through it."""
     if is_cyclegan_checkpoint(path):
         return CycleGANTranslator.from_checkpoint(path, device)
     return Translator.from_checkpoint(path, device)
@@ -136,7 +131,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n", type=int, default=8, help="samples per frame (default 8)")
     parser.add_argument("--temperature", type=float, default=1.0, help="latent noise scale s (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
     parser.add_argument("--max-frames", type=int, help="translate at most this many frames")
 
 

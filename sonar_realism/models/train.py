@@ -36,7 +36,17 @@ from torch import nn
 from tqdm import tqdm
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
-from sonar_realism.datasets import (
+from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.io import read_frames
+from sonar_realism.models.cdfcvae import (
+    CDFCVAE,
+    CDFCVAEConfig,
+    PerceptualConfig,
+    PerceptualLoss,
+    load_checkpoint,
+    save_checkpoint,
+)
+from sonar_realism.models.datasets import (
     GridFrames,
     Normalisation,
     batches,
@@ -48,16 +58,7 @@ from sonar_realism.datasets import (
     split_by_recording,
     to_model_grid,
 )
-from sonar_realism.errors import ConfigError, FormatError
-from sonar_realism.io import read_frames
-from sonar_realism.models.cdfcvae import (
-    CDFCVAE,
-    CDFCVAEConfig,
-    PerceptualConfig,
-    PerceptualLoss,
-    load_checkpoint,
-    save_checkpoint,
-)
+from sonar_realism.models.device import pick_device
 from sonar_realism.models.speckle import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
@@ -134,16 +135,6 @@ class EarlyStopping:
 
 
 # --- one run -------------------------------------------------------------------------------------------------------
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("--device cuda: CUDA is not available on this machine")
-    if name not in ("cpu", "cuda"):
-        raise ConfigError(f"--device {name!r}: choose auto, cpu or cuda")
-    return torch.device(name)
-
 
 @dataclass
 class Data:
@@ -482,7 +473,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=int, help="default: 16 (cdfcvae), 1 (cyclegan)")
     parser.add_argument("--grid", help="model grid RANGESxBEAMS (default 128x128)")
     parser.add_argument("--max-frames", type=int, help="use at most this many frames of each set")
-    parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
     parser.add_argument("--seed", type=int, help="default 0")
     parser.add_argument("--resume", action="store_true", help="continue the run left in --out")
     parser.add_argument("--cycle1", help="cdfcvae: reuse this checkpoint's cycle 1 (the real-data VAE, e.g. "
@@ -508,7 +499,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 def run(args: argparse.Namespace) -> int:
     if args.model == "cyclegan":
-        from sonar_realism.train_cyclegan import train
+        from sonar_realism.models.train_cyclegan import train
 
         args.batch_size = args.batch_size or 1
         args.grid = args.grid or "128x128"

@@ -21,16 +21,16 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
-from sonar_realism.datasets import load_grid_frames
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.models.cyclegan import (
     CHECKPOINT_KIND,
     CycleGAN,
     CycleGANConfig,
     ImagePool,
-    pick_device,
     resolve_checkpoint,
 )
+from sonar_realism.models.datasets import load_grid_frames
+from sonar_realism.models.device import pick_device
 
 
 def cyclegan_grid(text: str) -> tuple[int, int]:
