@@ -119,14 +119,7 @@ def main() -> int:
                          **texture_statistics(fit_native, fit_grid)}
     print(f"yardstick done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
 
-    methods: dict[str, list[SonarImage]] = {RAW: [f.replace(intensity=f.intensity[None]) for f in inputs]}
-    means: dict[str, list[SonarImage]] = {RAW: inputs}
-    for spec in args.model:
-        name, _, path = spec.partition("=")
-        translator = load_translator(path, "cpu")
-        methods[name] = translator.translate(inputs, n=args.n, seed=0)
-        means[name] = [f.sample(0) for f in translator.translate(inputs, n=1, temperature=0.0, seed=0)]
-    for name, outputs in methods.items():
+    def measure(name: str, outputs: list[SonarImage], means: list[SonarImage]) -> dict[str, object]:
         first_native = [normalise(f.sample(0), "frame_max") for f in outputs]
         first_grid = np.stack([to_model_grid(f.sample(0), GRID, "frame_max") for f in outputs])
         row: dict[str, object] = {**two_sample(held_native, first_native, held_grid, first_grid, args.seeds),
@@ -141,17 +134,30 @@ def main() -> int:
                 ious.append(mask_iou(on_grid, output))
                 input_ious.append(mask_iou(on_grid, source))
         row["mask_iou_ratio"] = float(np.nanmean(ious) / np.nanmean(input_ious)) if ious else None
-        mean_grid = [to_model_grid(f, GRID, "frame_max") for f in means[name]]
+        mean_grid = [to_model_grid(f, GRID, "frame_max") for f in means]
         row["edge_ssim_mean"] = float(np.mean([edge_ssim(a, b) for a, b in zip(input_grid, mean_grid,
                                                                               strict=True)]))
-        results[name] = row
+        return row
+
+    def record() -> dict[str, object]:
+        return {"real_held_out": real_stats, "methods": results, "n_inputs": len(inputs), "n_held_out": len(held),
+                "n_fit_yardstick": len(fit), "seeds": args.seeds, "command": " ".join(sys.argv),
+                "seconds": time.monotonic() - started}
+
+    # written after every method, so a long run that is cut short keeps what it measured
+    results[RAW] = measure(RAW, [f.replace(intensity=f.intensity[None]) for f in inputs], inputs)
+    (out / "goals.json").write_text(json.dumps(record(), indent=1) + "\n")
+    print(f"{RAW} done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
+    for spec in args.model:
+        name, _, path = spec.partition("=")
+        translator = load_translator(path, "cpu")
+        outputs = translator.translate(inputs, n=args.n, seed=0)
+        means = [f.sample(0) for f in translator.translate(inputs, n=1, temperature=0.0, seed=0)]
+        results[name] = measure(name, outputs, means)
+        (out / "goals.json").write_text(json.dumps(record(), indent=1) + "\n")
         print(f"{name} done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
 
-    record = {"real_held_out": real_stats, "methods": results, "n_inputs": len(inputs), "n_held_out": len(held),
-              "n_fit_yardstick": len(fit), "seeds": args.seeds, "command": " ".join(sys.argv),
-              "seconds": time.monotonic() - started}
-    (out / "goals.json").write_text(json.dumps(record, indent=1) + "\n")
-    print(markdown(record))
+    print(markdown(record()))
     return 0
 
 
