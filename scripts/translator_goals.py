@@ -119,7 +119,7 @@ def main() -> int:
                          **texture_statistics(fit_native, fit_grid)}
     print(f"yardstick done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
 
-    def measure(name: str, outputs: list[SonarImage], means: list[SonarImage]) -> dict[str, object]:
+    def measure(outputs: list[SonarImage], means: list[SonarImage]) -> dict[str, object]:
         first_native = [normalise(f.sample(0), "frame_max") for f in outputs]
         first_grid = np.stack([to_model_grid(f.sample(0), GRID, "frame_max") for f in outputs])
         row: dict[str, object] = {**two_sample(held_native, first_native, held_grid, first_grid, args.seeds),
@@ -145,7 +145,7 @@ def main() -> int:
                 "seconds": time.monotonic() - started}
 
     # written after every method, so a long run that is cut short keeps what it measured
-    results[RAW] = measure(RAW, [f.replace(intensity=f.intensity[None]) for f in inputs], inputs)
+    results[RAW] = measure([f.replace(intensity=f.intensity[None]) for f in inputs], inputs)
     (out / "goals.json").write_text(json.dumps(record(), indent=1) + "\n")
     print(f"{RAW} done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
     for spec in args.model:
@@ -153,7 +153,7 @@ def main() -> int:
         translator = load_translator(path, "cpu")
         outputs = translator.translate(inputs, n=args.n, seed=0)
         means = [f.sample(0) for f in translator.translate(inputs, n=1, temperature=0.0, seed=0)]
-        results[name] = measure(name, outputs, means)
+        results[name] = measure(outputs, means)
         (out / "goals.json").write_text(json.dumps(record(), indent=1) + "\n")
         print(f"{name} done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
 
