@@ -131,6 +131,9 @@ def test_cli_flags_override_the_json_config_and_unknown_keys_are_rejected(tmp_pa
                               "--grid", "64x32"])
     cfg = config_from_args(args)
     assert (cfg.epochs1, cfg.batch_size, cfg.model.latent_dim, cfg.model.grid) == (7, 5, 12, (64, 32))
+    assert cfg.real_recordings == ()
+    args.recordings = "rec_a, rec_b"
+    assert config_from_args(args).real_recordings == ("rec_a", "rec_b")
     config.write_text(json.dumps({"learning_rat": 1e-3}))
     with pytest.raises(ConfigError, match="learning_rat"):
         config_from_args(args)

@@ -473,6 +473,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=int, help="default: 16 (cdfcvae), 1 (cyclegan)")
     parser.add_argument("--grid", help="model grid RANGESxBEAMS (default 128x128)")
     parser.add_argument("--max-frames", type=int, help="use at most this many frames of each set")
+    parser.add_argument("--recordings", help="cdfcvae: train only on the real frames of these recordings "
+                                             "(comma-separated names, e.g. Oculus_20250805_173650); the rest "
+                                             "stays held out for evaluation")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
     parser.add_argument("--seed", type=int, help="default 0")
     parser.add_argument("--resume", action="store_true", help="continue the run left in --out")
@@ -492,6 +495,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     flags = {"epochs1": args.epochs1, "epochs2": args.epochs2, "batch_size": args.batch_size,
              "max_frames": args.max_frames, "seed": args.seed}
     data.update({k: v for k, v in flags.items() if v is not None})
+    if args.recordings:
+        data["real_recordings"] = [name.strip() for name in args.recordings.split(",") if name.strip()]
     if args.grid:
         data["model"] = {**data.get("model", {}), "grid": list(parse_grid(args.grid))}
     return from_dict(TrainConfig, data, str(args.config or "config"))
