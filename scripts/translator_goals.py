@@ -59,7 +59,7 @@ REAL_FIT = "real (fit recording)"
 def real_frames(recording: str, every: int = 1) -> list[SonarImage]:
     files = oculus_recording_files(recording)[::every]
     if not files:
-        raise SystemExit(f"no frames of {recording}: set SONAR_REALISM_DATA or pass --data")
+        raise SystemExit(f"no frames of {recording}: set SONAR_REALISM_DATA to the data folder")
     return [frame for path in files for frame in read_frames(path)]
 
 

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
+from sonar_realism.data import DATA_ENV
 from sonar_realism.errors import SonarRealismError
 
 SUBCOMMANDS = {
@@ -26,8 +28,11 @@ SUBCOMMANDS = {
 
 def build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, str | None]:
     parser = argparse.ArgumentParser(prog="sonar-realism", description=__doc__.splitlines()[0])
+    parser.add_argument("--data", help=f"the data folder with the real sets (default: ${DATA_ENV}, else "
+                                       "../shared/data beside the checkout)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    chosen = next((a for a in argv if not a.startswith("-")), None)
+    words = [a for i, a in enumerate(argv) if not a.startswith("-") and (i == 0 or argv[i - 1] != "--data")]
+    chosen = words[0] if words else None
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         sp = sub.add_parser(name, help=help_text, description=help_text)
         if name == chosen:
@@ -42,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     if chosen is None:
         parser.print_help()
         return 2
+    if args.data:  # one setting for every part that finds the real sets (sonar_realism.data)
+        os.environ[DATA_ENV] = args.data
     module = importlib.import_module(SUBCOMMANDS[chosen][0])
     try:
         return int(module.run(args) or 0)

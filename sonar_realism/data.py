@@ -1,7 +1,7 @@
 """Where the real data sets live: one setting for the whole project.
 
-`SONAR_REALISM_DATA` names the data folder; without it, `../shared/data` beside the checkout is used. Scripts
-and CLIs take `--data` on top of that. No machine's absolute path is ever written into the repository.
+`SONAR_REALISM_DATA` names the data folder; without it, `../shared/data` beside the checkout is used.
+`sonar-realism --data DIR COMMAND ...` sets it for one command. No machine's absolute path is ever written into the repository.
 """
 
 from __future__ import annotations
