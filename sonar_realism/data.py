@@ -1,7 +1,8 @@
 """Where the real data sets live: one setting for the whole project.
 
 `SONAR_REALISM_DATA` names the data folder; without it, `../shared/data` beside the checkout is used.
-`sonar-realism --data DIR COMMAND ...` sets it for one command. No machine's absolute path is ever written into the repository.
+`sonar-realism --data DIR COMMAND ...` sets it for one command. No machine's absolute path is ever written
+into the repository.
 """
 
 from __future__ import annotations

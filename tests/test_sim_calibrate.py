@@ -154,3 +154,16 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     page = out.with_suffix(".html").read_text()
     assert "data:image/png;base64," in page and "height above seabed" in page
     assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
+
+
+def test_a_recording_whose_seabed_fills_the_window_is_calibrated_with_the_mounting_assumed() -> None:
+    # a tank-like setting (the ARIS set): low and tilted, the window starting beyond the seabed's first return
+    mode = GridMode(n_beams=64, n_ranges=160, min_range_m=2.0, max_range_m=8.0, fov_deg=30.0, weight=1.0)
+    tank = dataclasses.replace(truth(), grid=Grid((mode,), "recording", "recording"),
+                               mounting=Mounting(exact(0.6), exact(12.0), exact(0.0), exact(0.0), 14.0))
+    recording = [frame for frame, _ in simulate_calibrated(tank, 12, seed=4)]
+    result = calibrate(recording, "tank", dataclasses.replace(FAST, vertical_fov_deg=14.0))
+    c = result.calibration
+    assert any("seabed fills the window" in note and "assumed" in note for note in c.notes)
+    first_rows = np.stack([image[:16] for image in result.examples["calibrated sim"]])
+    assert (first_rows <= 2 / 255).mean() < 0.2  # the calibrated sim shows seabed from the window's start too

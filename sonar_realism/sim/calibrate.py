@@ -310,8 +310,14 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                 for i, f in zip(images, frames, strict=True)]
     seen = np.array([(g.height_m, g.tilt_deg, g.onset_m) for g in geometry if g is not None])
     if len(seen) < max(3, len(frames) // 4):
-        raise ConfigError(f"calibrate: only {len(seen)} of {len(frames)} frames show a seabed onset below a water "
-                          "column; the mounting cannot be measured from this recording")
+        # no water column above the seabed in most frames: the seabed fills the window from its first bin
+        seen = np.array([(g.height_m, g.tilt_deg, g.onset_m) for g in (
+            measure.filled_window_geometry(f.ranges_m, config.vertical_fov_deg) for f in frames)])
+        notes.append(f"only {sum(g is not None for g in geometry)} of {len(frames)} frames "
+                     "show a seabed onset below a water column: the seabed fills the window, so the mounting is "
+                     "assumed (the aperture's lower edge meets the seabed at the window's start, the beam axis at "
+                     "its middle), not measured")
+        say(notes[-1])
     b = config.bootstrap
     height = _estimate(seen[:, 0], np.median, rng, b)
     tilt = _estimate(seen[:, 1], np.median, rng, b)

@@ -96,6 +96,18 @@ def frame_geometry(image: np.ndarray, ranges_m: np.ndarray, azimuths_rad: np.nda
     return FrameGeometry(float(np.median(onset[central])), best[1], best[2])
 
 
+def filled_window_geometry(ranges_m: np.ndarray, vertical_fov_deg: float) -> FrameGeometry:
+    """Mounting for a frame whose seabed fills the window from its first bin (no water column to measure: a
+    tank, a steep tilt): the aperture's lower edge meets the seabed at the window's start and the beam axis at
+    its middle, i.e. the sensor is aimed at what it records. An assumption, not a measurement."""
+    start, middle = float(ranges_m[0]), float(ranges_m[0] + ranges_m[-1]) / 2
+    half_v = math.radians(vertical_fov_deg) / 2
+    # sin(t + half_v) / sin(t) = middle / start, solved for the axis' depression t
+    ratio = max(middle / max(start, 1e-3), 1.0 + 1e-3)
+    tilt = math.atan2(math.sin(half_v), ratio - math.cos(half_v))
+    return FrameGeometry(start, middle * math.sin(tilt), math.degrees(tilt))
+
+
 def seabed_rows(image: np.ndarray) -> int:
     """First row below the seabed onset (median over beam groups; the top third when none is found)."""
     rows = onset_rows(image)
