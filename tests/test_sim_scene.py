@@ -177,3 +177,13 @@ def test_a_pool_of_processes_gives_the_same_frames_in_the_same_order() -> None:
     for (frame_a, mask_a), (frame_b, mask_b) in zip(one, pooled, strict=True):
         np.testing.assert_array_equal(frame_a.intensity, frame_b.intensity)
         np.testing.assert_array_equal(mask_a, mask_b)
+
+
+def test_smooth_noise_has_the_requested_shape_at_every_correlation_length():
+    from sonar_realism.sim.scene import _smooth_noise
+
+    rng = np.random.default_rng(0)
+    for sigma_cells in (0.1, 1.0, 2.0, 2.5, 40.0):  # <= 2 cells is drawn at full resolution, longer ones coarse
+        field = _smooth_noise(rng, (341, 340), sigma_cells)
+        assert field.shape == (341, 340)
+        assert abs(float(field.std()) - 1.0) < 1e-3

@@ -212,7 +212,8 @@ def _smooth_noise(rng: np.random.Generator, shape: tuple[int, int], sigma_cells:
     statistics, a fraction of the cost of a wide blur.
     """
     factor = max(1.0, sigma_cells / 2.0)
-    coarse_shape = (max(2, int(math.ceil(shape[0] / factor)) + 1), max(2, int(math.ceil(shape[1] / factor)) + 1))
+    coarse_shape = shape if factor == 1.0 else (max(2, int(math.ceil(shape[0] / factor)) + 1),
+                                                 max(2, int(math.ceil(shape[1] / factor)) + 1))
     white = rng.standard_normal(coarse_shape).astype(np.float32)
     sigma = sigma_cells / factor
     if sigma > 0.3:
