@@ -165,5 +165,7 @@ def test_a_recording_whose_seabed_fills_the_window_is_calibrated_with_the_mounti
     result = calibrate(recording, "tank", dataclasses.replace(FAST, vertical_fov_deg=14.0))
     c = result.calibration
     assert any("seabed fills the window" in note and "assumed" in note for note in c.notes)
+    lower_edge = np.radians(c.mounting.tilt_deg.value + 14.0 / 2)
+    assert c.mounting.height_m.value / np.sin(lower_edge) == pytest.approx(2.0, rel=0.05)  # first return at 2 m
     first_rows = np.stack([image[:16] for image in result.examples["calibrated sim"]])
     assert (first_rows <= 2 / 255).mean() < 0.2  # the calibrated sim shows seabed from the window's start too

@@ -309,7 +309,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     geometry = [measure.frame_geometry(i, f.ranges_m, f.azimuths_rad, config.vertical_fov_deg)
                 for i, f in zip(images, frames, strict=True)]
     seen = np.array([(g.height_m, g.tilt_deg, g.onset_m) for g in geometry if g is not None])
-    if len(seen) < max(3, len(frames) // 4):
+    onset_measured = len(seen) >= max(3, len(frames) // 4)
+    if not onset_measured:
         # no water column above the seabed in most frames: the seabed fills the window from its first bin
         seen = np.array([(g.height_m, g.tilt_deg, g.onset_m) for g in (
             measure.filled_window_geometry(f.ranges_m, config.vertical_fov_deg) for f in frames)])
@@ -356,8 +357,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     n, seed = config.sim_frames, config.seed
     bins = _sim_bins(calibration, n, seed)
 
-    # height: the simulated onset on the real one (same detector); seabed look: matched statistics
-    for _ in range(2):
+    # height: the simulated onset on the real one (same detector), when there is a real one to match
+    for _ in range(2 if onset_measured else 0):
         sim_onset = _median_onset(_sim_images(calibration, defaults, n, seed, gain=False), bins)
         if math.isfinite(sim_onset) and sim_onset > 0:
             scale = real_onset / sim_onset
