@@ -66,7 +66,10 @@ def _convert(hint: Any, value: Any, where: str) -> Any:
                 return _convert(arg, value, where)
             except ConfigError as exc:
                 errors.append(str(exc))
-        raise ConfigError(f"{where}: {value!r} matches none of {hint}")
+        if len(errors) == 1:  # an optional field: the one real type's own complaint says what is wrong
+            raise ConfigError(errors[0])
+        shown = repr(value) if len(repr(value)) <= 80 else f"a {type(value).__name__}"
+        raise ConfigError(f"{where}: {shown} matches none of {hint} ({'; '.join(errors)})")
     if origin is tuple:
         if not isinstance(value, list | tuple):
             raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")

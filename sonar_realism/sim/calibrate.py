@@ -15,7 +15,9 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py), then a residual range/bearing gain;
 5. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
-   short local search from the fit), 5th-95th percentiles.
+   short local search from the fit), 5th-95th percentiles;
+6. the texture: the recording's own speckle (sim/texture.py), which simulation draws in place of the
+   catalogue's speckle and output mapping.
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_eff
 from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, per_frame_rescaled, resample_profile
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
+from sonar_realism.sim.texture import fit_texture
 
 MIN_FRAMES = 8
 MAX_GRID_MODES = 24
@@ -407,9 +410,11 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     seabed_intervals = _seabed_intervals(images, look, real_contrast, real_scale_rows, real_dark, rng, b)
     calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
 
-    # before / after
+    # before / after (the fitted texture only in the last: the effects were fitted without it)
     uncalibrated = [per_frame_rescaled(f.intensity) for f, _ in simulate("default", "all", n, seed)]
     geometry_only = _sim_images(calibration, defaults, n, seed, gain=False)
+    calibration = dataclasses.replace(calibration, texture=fit_texture(images, config.seed))
+    say("texture: the recording's speckle fitted (sim/texture.py)")
     final = [per_frame_rescaled(f.intensity) for f, _ in simulate_calibrated(calibration, n, seed)]
     fingerprints = {"real": target, "uncalibrated sim": fingerprint(uncalibrated),
                     "geometry + default effects": fingerprint(geometry_only), "calibrated sim": fingerprint(final)}

@@ -24,6 +24,8 @@ from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
 from sonar_realism.sim.sensor import SensorConfig
 from sonar_realism.sim.simulate import frame_for
+from sonar_realism.sim.texture import REPLACES as TEXTURE_REPLACES
+from sonar_realism.sim.texture import apply_texture
 
 TARGET_KINDS = ("sphere", "cube", "barrel")
 # Spread of one target's size around the calibrated size (log-normal sigma) and of its range (fraction).
@@ -144,12 +146,19 @@ def residual_gain(calibration: Calibration, frame: SonarImage) -> np.ndarray:
 
 def finish(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect], rng: np.random.Generator,
            gain: bool = True) -> SonarImage:
-    """Effects before the output mapping, the residual gain, the output mapping, then the recording's export."""
+    """Effects before the output mapping, the residual gain, the output mapping, then the recording's export.
+    With a fitted texture and `speckle` in the chain, the recording's own speckle and export replace the
+    catalogue's speckle and output mapping."""
+    textured = calibration.texture is not None and any(e.name == "speckle" for e in chain)
+    if textured:
+        chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
     before = [e for e in chain if e.name != "gamma_quantization"]
     output = [e for e in chain if e.name == "gamma_quantization"]
     frame = apply_effects(clean, before, rng) if before else clean
     if gain:
         frame = frame.replace(intensity=frame.intensity * residual_gain(calibration, frame))
+    if textured:
+        return apply_texture(calibration.texture, frame, rng)
     if output:
         frame = apply_effects(frame, output, rng)
     if calibration.export_rescaled:

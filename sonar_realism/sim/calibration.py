@@ -16,6 +16,7 @@ from typing import Any
 from sonar_realism.config import from_dict, to_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.sim.effects import EFFECTS, Effect, make_effect
+from sonar_realism.sim.texture import SensorTexture
 
 CALIBRATION_VERSION = 1
 
@@ -150,6 +151,8 @@ class Calibration:
     distances: dict[str, float]  # fingerprint distance to the recording: uncalibrated sim, geometry only, calibrated
     export_rescaled: bool  # the recording was exported per frame as raw * 255 / raw.max(); simulate does the same
     notes: tuple[str, ...] = field(default=())
+    # the recording's own speckle (sim/texture.py), drawn in place of the catalogue's speckle; None: not fitted
+    texture: SensorTexture | None = None
 
     def validate(self) -> None:
         if self.version != CALIBRATION_VERSION:
