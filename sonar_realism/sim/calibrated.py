@@ -148,7 +148,7 @@ def finish(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect],
            gain: bool = True) -> SonarImage:
     """Effects before the output mapping, the residual gain, the output mapping, then the recording's export.
     With a fitted texture and `speckle` in the chain, the recording's own speckle and export replace the
-    catalogue's speckle and output mapping."""
+    catalogue's speckle: drawn on the output level, scaled to the maximum and 8-bit as the recording was."""
     textured = calibration.texture is not None and any(e.name == "speckle" for e in chain)
     if textured:
         chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
@@ -157,10 +157,10 @@ def finish(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect],
     frame = apply_effects(clean, before, rng) if before else clean
     if gain:
         frame = frame.replace(intensity=frame.intensity * residual_gain(calibration, frame))
-    if textured:
-        return apply_texture(calibration.texture, frame, rng)
     if output:
         frame = apply_effects(frame, output, rng)
+    if textured:  # on the output level (after the output mapping), as the texture was fitted on the export
+        return apply_texture(calibration.texture, frame, rng)
     if calibration.export_rescaled:
         frame = _rescale_to_max(frame)
     return frame

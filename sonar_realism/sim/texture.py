@@ -7,7 +7,8 @@ tells the two apart at once. So `calibrate` also fits the recording's texture wi
 model (models/speckle.py): the ratio of each real frame to its local mean level (a Gaussian blur of one cell
 of the 128 x 128 model grid, the level the cDFCVAE learns), as a level-binned quantile table plus a grain
 kernel. `simulate --calibration` then draws the simulated frame's texture from that fit in place of the
-`speckle` effect and the output quantisation: the simulated mean level, the sensor's speckle on top.
+`speckle` effect, on the output level (after the output mapping): the simulated mean level, the sensor's
+speckle on top, exported as the recording was.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 
 MODEL_GRID = 128  # the local mean is the level on a 128 x 128 grid, the cDFCVAE's
 FIT_FRAMES = 96  # frames the fit uses, evenly spaced over the recording
-REPLACES = ("speckle", "gamma_quantization")  # the catalogue effects the fitted texture stands in for
+REPLACES = ("speckle",)  # the catalogue effects the fitted texture stands in for
 
 
 @dataclass(frozen=True)
