@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -51,9 +52,9 @@ class Box:
         union = self.area + other.area - overlap
         return overlap / union if union > 0 else 0.0
 
-    def mirrored(self, n_cols: int) -> Box:
-        """The box in the port/starboard mirror of its frame."""
-        return Box(self.top, n_cols - self.right, self.bottom, n_cols - self.left)
+    def clipped(self, grid: tuple[int, int]) -> Box:
+        return Box(min(max(self.top, 0.0), grid[0]), min(max(self.left, 0.0), grid[1]),
+                   min(max(self.bottom, 0.0), grid[0]), min(max(self.right, 0.0), grid[1]))
 
 
 class Detection(NamedTuple):
@@ -70,9 +71,14 @@ class DetectorConfig:
     dilations: tuple[int, ...] = (1, 2, 4)  # the 3 x 3 convolutions at stride 4
     steps: int = 1000
     batch_size: int = 16
-    learning_rate: float = 2e-3
+    learning_rate: float = 5e-3
     size_weight: float = 1.0  # weight of the log-size and offset L1 losses against the focal loss
-    flip_beams: bool = True  # random port/starboard mirrors (a physically valid frame; a range flip is not)
+    # Augmentation, the same for every training set: random port/starboard mirrors (a physically valid frame;
+    # a range flip is not), zooms by up to `max_zoom` either way about a random point (targets come in many
+    # sizes), and gamma changes by up to exp(+-gamma_jitter) (gain and contrast differ between recordings).
+    flip_beams: bool = True
+    max_zoom: float = 1.5
+    gamma_jitter: float = 0.4
     max_detections: int = 10  # per frame
     seed: int = 0
 
@@ -83,6 +89,8 @@ class DetectorConfig:
             raise ConfigError(f"detector: channels >= 4, steps, batch_size and max_detections >= 1 needed, got {self}")
         if not self.learning_rate > 0 or not self.size_weight >= 0 or any(d < 1 for d in self.dilations):
             raise ConfigError(f"detector: learning_rate > 0, size_weight >= 0, dilations >= 1 needed, got {self}")
+        if not self.max_zoom >= 1 or not self.gamma_jitter >= 0:
+            raise ConfigError(f"detector: max_zoom >= 1 and gamma_jitter >= 0 needed, got {self}")
 
 
 def _conv(inputs: int, outputs: int, kernel: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
@@ -201,6 +209,34 @@ def _targets(boxes: list[Box], grid: tuple[int, int]) -> tuple[np.ndarray, np.nd
     return heatmap, log_size, offset, centres
 
 
+def _augment(image: np.ndarray, boxes: list[Box], config: DetectorConfig,
+             rng: np.random.Generator) -> tuple[np.ndarray, list[Box]]:
+    """A randomly mirrored, zoomed and gamma-changed copy of a frame and its boxes (those still on it)."""
+    rows, cols = image.shape
+    zoom = float(np.exp(rng.uniform(-np.log(config.max_zoom), np.log(config.max_zoom))))
+    centre_row, centre_col = rng.uniform(0, rows), rng.uniform(0, cols)
+    # In box coordinates: x' = scale * x + shift per axis; a mirror (x -> cols - x) comes before the zoom.
+    if config.flip_beams and rng.random() < 0.5:
+        col_scale, col_shift = -zoom, zoom * (cols - centre_col) + centre_col
+    else:
+        col_scale, col_shift = zoom, centre_col * (1 - zoom)
+    row_scale, row_shift = zoom, centre_row * (1 - zoom)
+    # cv2 puts pixel centres at integers, boxes at half-integers: shift by (scale - 1) / 2 to match.
+    warp = np.array([[col_scale, 0.0, col_shift + 0.5 * (col_scale - 1)],
+                     [0.0, row_scale, row_shift + 0.5 * (row_scale - 1)]], np.float32)
+    out = cv2.warpAffine(image, warp, (cols, rows), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    out = np.clip(out, 0.0, 1.0) ** np.float32(np.exp(rng.uniform(-config.gamma_jitter, config.gamma_jitter)))
+    moved = []
+    for box in boxes:
+        left, right = sorted((col_scale * box.left + col_shift, col_scale * box.right + col_shift))
+        shifted = Box(row_scale * box.top + row_shift, left, row_scale * box.bottom + row_shift, right)
+        visible = shifted.clipped((rows, cols))
+        # A target mostly pushed off the frame is no longer one to find.
+        if visible.area >= 0.5 * shifted.area > 0:
+            moved.append(visible)
+    return out.astype(np.float32, copy=False), moved
+
+
 def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """CenterNet's penalty-reduced focal loss (alpha 2, beta 4), normalised by the number of centres."""
     probability = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
@@ -225,15 +261,12 @@ def train_detector(images: np.ndarray, boxes: list[list[Box]], config: DetectorC
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimiser, config.learning_rate, total_steps=config.steps,
                                                    pct_start=0.1)
-    mirrored = [[box.mirrored(config.grid[1]) for box in frame_boxes] for frame_boxes in boxes]
-    plain_targets = [_targets(frame_boxes, config.grid) for frame_boxes in boxes]
-    mirror_targets = [_targets(frame_boxes, config.grid) for frame_boxes in mirrored] if config.flip_beams else []
     model.train()
     for _ in range(config.steps):
         chosen = rng.integers(0, len(images), config.batch_size)
-        flips = rng.random(config.batch_size) < 0.5 if config.flip_beams else np.zeros(config.batch_size, bool)
-        batch = np.stack([images[i][:, ::-1] if flip else images[i] for i, flip in zip(chosen, flips, strict=True)])
-        targets = [mirror_targets[i] if flip else plain_targets[i] for i, flip in zip(chosen, flips, strict=True)]
+        augmented = [_augment(images[i], boxes[i], config, rng) for i in chosen]
+        batch = np.stack([image for image, _ in augmented])
+        targets = [_targets(frame_boxes, config.grid) for _, frame_boxes in augmented]
         heatmap, log_size, offset, centres = (torch.from_numpy(np.stack(parts)) for parts in zip(*targets, strict=True))
         heatmap_logits, predicted_size, predicted_offset = model(torch.from_numpy(batch).unsqueeze(1))
         weight = centres.unsqueeze(1)
