@@ -11,6 +11,7 @@ from sonar_realism.evaluate.detection import (
     Box,
     Detection,
     DetectorConfig,
+    augment,
     average_precision,
     detect,
     mask_boxes,
@@ -121,6 +122,23 @@ def test_real_held_out_labels_parse_one_box_per_frame(real_oculus: Path) -> None
     boxes = [read_yolo_boxes(yolo_label_file(path), (128, 128)) for path in files]
     assert all(len(frame_boxes) >= 1 for frame_boxes in boxes)
     assert all(0 <= b.left < b.right <= 128 and b.top < b.bottom for frame_boxes in boxes for b in frame_boxes)
+
+
+def test_augmented_boxes_follow_the_moved_target() -> None:
+    image = np.zeros((64, 64), np.float32)
+    image[20:30, 8:24] = 1.0
+    rng = np.random.default_rng(0)
+    kept = 0
+    for _ in range(20):
+        moved, boxes = augment(image, [Box(20, 8, 30, 24)], DetectorConfig(gamma_jitter=0.0), rng)
+        rows, cols = np.nonzero(moved > 0.5)
+        if not boxes:  # pushed mostly off the frame
+            continue
+        kept += 1
+        (box,) = boxes
+        assert (box.top, box.left, box.bottom, box.right) == pytest.approx(
+            (rows.min(), cols.min(), rows.max() + 1, cols.max() + 1), abs=1.0)
+    assert kept >= 10
 
 
 def _blob_frames(n: int, grid: tuple[int, int], seed: int) -> tuple[np.ndarray, list[list[Box]]]:

@@ -209,7 +209,7 @@ def _targets(boxes: list[Box], grid: tuple[int, int]) -> tuple[np.ndarray, np.nd
     return heatmap, log_size, offset, centres
 
 
-def _augment(image: np.ndarray, boxes: list[Box], config: DetectorConfig,
+def augment(image: np.ndarray, boxes: list[Box], config: DetectorConfig,
              rng: np.random.Generator) -> tuple[np.ndarray, list[Box]]:
     """A randomly mirrored, zoomed and gamma-changed copy of a frame and its boxes (those still on it)."""
     rows, cols = image.shape
@@ -264,7 +264,7 @@ def train_detector(images: np.ndarray, boxes: list[list[Box]], config: DetectorC
     model.train()
     for _ in range(config.steps):
         chosen = rng.integers(0, len(images), config.batch_size)
-        augmented = [_augment(images[i], boxes[i], config, rng) for i in chosen]
+        augmented = [augment(images[i], boxes[i], config, rng) for i in chosen]
         batch = np.stack([image for image, _ in augmented])
         targets = [_targets(frame_boxes, config.grid) for _, frame_boxes in augmented]
         heatmap, log_size, offset, centres = (torch.from_numpy(np.stack(parts)) for parts in zip(*targets, strict=True))
