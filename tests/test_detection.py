@@ -172,7 +172,9 @@ def test_detector_rejects_bad_config_and_frames() -> None:
         DetectorConfig(grid=(130, 128))
     with pytest.raises(ConfigError, match="learning_rate"):
         DetectorConfig(learning_rate=0.0)
-    config = DetectorConfig(grid=(32, 32), channels=4, steps=1)
+    with pytest.raises(ConfigError, match="multiple of 8"):
+        DetectorConfig(channels=12)
+    config = DetectorConfig(grid=(32, 32), channels=8, steps=1)
     with pytest.raises(ConfigError, match="frames must be"):
         train_detector(np.zeros((2, 16, 16), np.float32), [[], []], config)
     with pytest.raises(ConfigError, match="box lists"):

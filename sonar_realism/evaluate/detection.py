@@ -85,8 +85,9 @@ class DetectorConfig:
     def __post_init__(self) -> None:
         if len(self.grid) != 2 or min(self.grid) < STRIDE or any(g % STRIDE for g in self.grid):
             raise ConfigError(f"detector grid: two sizes, multiples of {STRIDE}, got {self.grid}")
-        if self.channels < 4 or self.steps < 1 or self.batch_size < 1 or self.max_detections < 1:
-            raise ConfigError(f"detector: channels >= 4, steps, batch_size and max_detections >= 1 needed, got {self}")
+        if self.channels < 8 or self.channels % 8 or self.steps < 1 or self.batch_size < 1 or self.max_detections < 1:
+            raise ConfigError(f"detector: channels a multiple of 8 (GroupNorm of 4 groups at half width), steps, "
+                              f"batch_size and max_detections >= 1 needed, got {self}")
         if not self.learning_rate > 0 or not self.size_weight >= 0 or any(d < 1 for d in self.dilations):
             raise ConfigError(f"detector: learning_rate > 0, size_weight >= 0, dilations >= 1 needed, got {self}")
         if not self.max_zoom >= 1 or not self.gamma_jitter >= 0:
