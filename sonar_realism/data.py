@@ -32,7 +32,7 @@ def data_root(override: str | os.PathLike[str] | None = None) -> Path:
 
 
 def real_oculus_dir(override: str | os.PathLike[str] | None = None) -> Path:
-    """The real Oculus polar set (train/ and val/ folders of PNGs, YOLO labels beside them)."""
+    """The real Oculus polar set (train/ and val/ folders of PNGs, YOLO labels beside them: `yolo_label_file`)."""
     return data_root(override) / REAL_OCULUS
 
 
@@ -45,3 +45,9 @@ def oculus_recording_files(recording: str, override: str | os.PathLike[str] | No
     """Every PNG of one Oculus recording (both folders), in frame order."""
     root = real_oculus_dir(override)
     return sorted(root.glob(f"*/images/{recording}_frame_*.png"), key=lambda path: path.name)
+
+
+def yolo_label_file(image: str | os.PathLike[str]) -> Path:
+    """The YOLO label file of a dataset image: `images/X.png` -> `labels/X.txt` (the Oculus set's layout)."""
+    image = Path(image)
+    return image.parent.parent / "labels" / f"{image.stem}.txt"
