@@ -128,9 +128,9 @@ def main() -> int:
             stack = np.stack([normalise(f, "frame_max") for f in outputs[:16]])
             row["diversity"] = dataclasses.asdict(sample_diversity(stack))
         ious, input_ious = [], []
-        for mask, output, source in zip(masks, first_grid, input_grid, strict=True):
+        for mask, frame, output, source in zip(masks, inputs, first_grid, input_grid, strict=True):
             if mask is not None and mask.any():
-                on_grid = mask_to_grid(mask, GRID)
+                on_grid = mask_to_grid(mask, frame, GRID)
                 ious.append(mask_iou(on_grid, output))
                 input_ious.append(mask_iou(on_grid, source))
         row["mask_iou_ratio"] = float(np.nanmean(ious) / np.nanmean(input_ious)) if ious else None

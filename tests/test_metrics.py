@@ -151,3 +151,20 @@ def test_family_gaps_from_the_shared_statistics_are_zero_for_identical_sets():
     blurred = np.stack([cv2.GaussianBlur(im, (0, 0), 2.0) for im in images])
     assert family_gaps(blurred, images)["grain"] > 1.0
     assert family_gaps(images[:, :32, :32], images[:, :32, :32]) is None  # below the statistics' minimum size
+
+
+def test_mask_lands_on_the_grid_where_its_frame_pixels_land_with_uneven_beams():
+    from sonar_realism.evaluate.structure import mask_to_grid
+    from sonar_realism.frames import SonarImage, uniform_ranges
+    from sonar_realism.models.datasets import to_model_grid
+
+    bearings = np.arcsin(np.linspace(-0.9, 0.9, 256))  # Oculus-like: beams denser at the centre in angle
+    image = np.zeros((200, 256), np.float32)
+    image[80:120, 20:30] = 1.0  # a bright object near the fan's edge
+    frame = SonarImage(image, uniform_ranges(200, 20.0), bearings)
+    mask = (image > 0).astype(np.uint8)
+    on_grid = mask_to_grid(mask, frame, (128, 128))
+    bright = to_model_grid(frame, (128, 128), "frame_max") > 0.5
+    assert mask_iou(on_grid, bright.astype(np.float32)) > 0.8
+    with pytest.raises(ConfigError, match="mask shape"):
+        mask_to_grid(mask[:10], frame, (128, 128))

@@ -14,6 +14,8 @@ import cv2
 import numpy as np
 
 from sonar_realism.errors import ConfigError
+from sonar_realism.frames import SonarImage
+from sonar_realism.geometry import resample_to_grid
 
 SPECKLE_BLUR_SIGMA = 2.0  # grid cells; about the speckle grain at 128x128
 
@@ -66,6 +68,10 @@ def mask_iou(mask: np.ndarray, output: np.ndarray) -> float:
     return float((truth & predicted).sum() / (truth | predicted).sum())
 
 
-def mask_to_grid(mask: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """An object mask [n_ranges, n_beams] on the model grid (nearest, so it stays binary)."""
-    return cv2.resize((mask > 0).astype(np.uint8), (grid[1], grid[0]), interpolation=cv2.INTER_NEAREST)
+def mask_to_grid(mask: np.ndarray, frame: SonarImage, grid: tuple[int, int]) -> np.ndarray:
+    """An object mask [n_ranges, n_beams] of `frame` on the model grid, through the frame's own range and
+    bearing tables as the frame itself is (Oculus beams are not evenly spaced), thresholded to stay binary."""
+    if mask.shape != (frame.n_ranges, frame.n_beams):
+        raise ConfigError(f"mask_to_grid: mask shape {mask.shape} is not the frame's {(frame.n_ranges, frame.n_beams)}")
+    as_frame = frame.replace(intensity=(mask > 0).astype(np.float32), intensity_scale=1.0)
+    return (resample_to_grid(as_frame, *grid).intensity >= 0.5).astype(np.uint8)

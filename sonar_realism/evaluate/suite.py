@@ -191,7 +191,7 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
                            dataclasses.replace(config.cnn, grid=config.grid, seed=config.seed),
                            progress=_epoch_bar("realism CNN"))
     inputs = np.stack([sim_grid(item) for item in scored])
-    masks = [mask_to_grid(item.mask, config.grid) if item.mask is not None else None for item in scored]
+    masks = [mask_to_grid(item.mask, item.frame, config.grid) if item.mask is not None else None for item in scored]
     outputs = {RAW_SIM: inputs[:, None]}
     frames = [item.frame.sample(0) if item.frame.intensity.ndim == 3 else item.frame for item in scored]
     natives = {RAW_SIM: [normalise(frame, "frame_max") for frame in frames]}
