@@ -98,6 +98,7 @@ def main() -> int:
     parser.add_argument("--n", type=int, default=8, help="samples per input")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--out", required=True)
+    parser.add_argument("--resume", action="store_true", help="keep the methods already in OUT/goals.json")
     args = parser.parse_args()
     torch.set_num_threads(max(1, torch.get_num_threads()))
     started = time.monotonic()
@@ -112,11 +113,15 @@ def main() -> int:
     input_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in inputs])
 
     results: dict[str, dict[str, object]] = {}
+    previous = out / "goals.json"
+    if args.resume and previous.is_file():  # keep what an earlier run of the same command measured
+        results = json.loads(previous.read_text())["methods"]
     real_stats = texture_statistics(held_native, held_grid)
-    fit_native = [normalise(f, "frame_max") for f in fit]
-    fit_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in fit])
-    results[REAL_FIT] = {**two_sample(held_native, fit_native, held_grid, fit_grid, args.seeds),
-                         **texture_statistics(fit_native, fit_grid)}
+    if REAL_FIT not in results:
+        fit_native = [normalise(f, "frame_max") for f in fit]
+        fit_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in fit])
+        results[REAL_FIT] = {**two_sample(held_native, fit_native, held_grid, fit_grid, args.seeds),
+                             **texture_statistics(fit_native, fit_grid)}
     print(f"yardstick done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
 
     def measure(outputs: list[SonarImage], means: list[SonarImage]) -> dict[str, object]:
@@ -125,7 +130,10 @@ def main() -> int:
         row: dict[str, object] = {**two_sample(held_native, first_native, held_grid, first_grid, args.seeds),
                                   **texture_statistics(first_native, first_grid)}
         if outputs[0].intensity.shape[0] >= 2:
-            stack = np.stack([normalise(f, "frame_max") for f in outputs[:16]])
+            # the most common native grid (a calibrated sim varies its range bins), up to 16 inputs of it
+            shapes = [f.intensity.shape for f in outputs]
+            common = max(set(shapes), key=shapes.count)
+            stack = np.stack([normalise(f, "frame_max") for f in outputs if f.intensity.shape == common][:16])
             row["diversity"] = dataclasses.asdict(sample_diversity(stack))
         ious, input_ious = [], []
         for mask, frame, output, source in zip(masks, inputs, first_grid, input_grid, strict=True):
@@ -145,11 +153,14 @@ def main() -> int:
                 "seconds": time.monotonic() - started}
 
     # written after every method, so a long run that is cut short keeps what it measured
-    results[RAW] = measure([f.replace(intensity=f.intensity[None]) for f in inputs], inputs)
-    (out / "goals.json").write_text(json.dumps(record(), indent=1) + "\n")
+    if RAW not in results:
+        results[RAW] = measure([f.replace(intensity=f.intensity[None]) for f in inputs], inputs)
+        (out / "goals.json").write_text(json.dumps(record(), indent=1) + "\n")
     print(f"{RAW} done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
     for spec in args.model:
         name, _, path = spec.partition("=")
+        if name in results:
+            continue
         translator = load_translator(path, "cpu")
         outputs = translator.translate(inputs, n=args.n, seed=0)
         means = [f.sample(0) for f in translator.translate(inputs, n=1, temperature=0.0, seed=0)]
