@@ -54,7 +54,7 @@ def recording() -> list:
     return [frame for frame, _ in simulate_calibrated(truth(), 12, seed=3)]
 
 
-FAST = CalibrateConfig(sim_frames=3, rounds=1, bootstrap=20, effect_bootstrap=1)
+FAST = CalibrateConfig(sim_frames=3, rounds=1, bootstrap=20, effect_bootstrap=1, texture=False)
 
 
 @pytest.fixture(scope="module")
@@ -154,6 +154,11 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     page = out.with_suffix(".html").read_text()
     assert "data:image/png;base64," in page and "height above seabed" in page
     assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
+    assert calibration.texture is not None  # the recording's own speckle, by default
+    no_texture = tmp_path / "plain.json"
+    assert cli_main(["calibrate", "--real", str(folder), "--out", str(no_texture), "--sim-frames", "2", "--rounds",
+                     "1", "--effect-bootstrap", "0", "--no-texture"]) == 0
+    assert load_calibration(no_texture).texture is None
 
 
 def test_a_recording_whose_seabed_fills_the_window_is_calibrated_with_the_mounting_assumed() -> None:

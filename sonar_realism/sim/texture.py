@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from sonar_realism.models.speckle import SpeckleField
 
 MODEL_GRID = 128  # the local mean is the level on a 128 x 128 grid, the cDFCVAE's
+MIN_BLUR = 2.0  # samples
 FIT_FRAMES = 96  # frames the fit uses, evenly spaced over the recording
 REPLACES = ("speckle",)  # the catalogue effects the fitted texture stands in for
 
@@ -62,10 +63,11 @@ def _speckle_field(texture: SensorTexture) -> SpeckleField:
 
 
 def local_mean(image: np.ndarray) -> np.ndarray:
-    """The frame's level: a Gaussian blur of one model-grid cell along range and across beams."""
+    """The frame's level: a Gaussian blur of one model-grid cell along range and across beams, and at least
+    MIN_BLUR samples (a smaller frame's cell is finer than the speckle grain the ratio must keep)."""
     rows, cols = image.shape
-    return cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigmaX=max(cols / MODEL_GRID, 0.3),
-                            sigmaY=max(rows / MODEL_GRID, 0.3), borderType=cv2.BORDER_REFLECT_101)
+    return cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigmaX=max(cols / MODEL_GRID, MIN_BLUR),
+                            sigmaY=max(rows / MODEL_GRID, MIN_BLUR), borderType=cv2.BORDER_REFLECT_101)
 
 
 def _rounded(values: np.ndarray) -> tuple:
