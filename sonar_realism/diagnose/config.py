@@ -41,10 +41,11 @@ class DiagnoseConfig:
     whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets
     exported that way); bootstrap: resamples of the held-out frames for every interval, test and selection
     frequency; ambiguity: a candidate chosen over the step's pick in at least this share of the resamples makes
-    the step ambiguous (both are reported, with their shares)."""
+    the step ambiguous (both are reported, with their shares); workers: processes that fit a step's candidates
+    side by side (the results do not depend on it)."""
 
     holdout_fraction: float = 0.5
-    fit_frames: int = 12
+    fit_frames: int = 8
     eval_frames: int = 96
     real_frames: int = 256
     max_effects: int = 4
@@ -58,6 +59,7 @@ class DiagnoseConfig:
     normalize: Literal["none", "max"] = "none"
     bootstrap: int = 200
     ambiguity: float = 0.2
+    workers: int = 2
     seed: int = 0
     search: SearchConfig = field(default_factory=SearchConfig)
     statistics: StatisticsConfig = field(default_factory=StatisticsConfig)
@@ -74,6 +76,8 @@ class DiagnoseConfig:
             raise ConfigError(f"diagnose.significance: must be in [0, 1), got {self.significance}")
         if self.bootstrap < 1:
             raise ConfigError(f"diagnose.bootstrap: at least 1 resample, got {self.bootstrap}")
+        if self.workers < 1:
+            raise ConfigError(f"diagnose.workers: at least 1, got {self.workers}")
         if not 0.0 < self.ambiguity <= 0.5:
             raise ConfigError(f"diagnose.ambiguity: must be in (0, 0.5], got {self.ambiguity}")
         if self.normalize not in ("none", "max"):

@@ -14,7 +14,16 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from sonar_realism.diagnose.config import MIN_FRAMES_PER_SPLIT, DiagnoseConfig, check_effect_names
-from sonar_realism.diagnose.gap import FeatureScale, Stats, bootstrap_interval, classifier_auc, family_gaps, headline
+from sonar_realism.diagnose.gap import (
+    FeatureScale,
+    Stats,
+    bootstrap_interval,
+    classifier_auc,
+    family_gaps,
+    gap_closed,
+    headline,
+)
+from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     AmbiguousGroup,
     Auc,
@@ -109,10 +118,10 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     real_hold = _images([real[i] for i in real_hold_idx[:config.real_frames]], config.normalize)
 
     stats_cfg = config.statistics
-    real_fit_stats = frame_statistics(real_fit, stats_cfg)
-    real_hold_stats = frame_statistics(real_hold, stats_cfg)
     raw_eval = corrected_images(eval_frames, [], config.search.seed, config.normalize)
-    raw_stats = frame_statistics(raw_eval, stats_cfg)
+    # the real side's statistics are computed once, on every core: each later measurement reuses them
+    real_fit_stats, real_hold_stats, raw_stats = (_statistics(images, stats_cfg, config.workers)
+                                                  for images in (real_fit, real_hold, raw_eval))
     scale = FeatureScale.pooled(raw_stats, real_hold_stats)
     say(f"statistics of {len(eval_frames)} sim and {len(real_hold)} real held-out frames")
 
@@ -171,8 +180,8 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         pattern = fit_gain_pattern(problem, selection.effects, config)
         gap_with_pattern = holdout(selection.effects, pattern)[0]
         if gap_with_pattern < gap_after:
-            gain_pattern = describe_pattern(pattern, reference.ranges_m, bearings_deg, gap_with_pattern,
-                                            _closed(gap_before, gap_with_pattern) - _closed(gap_before, gap_after))
+            share = gap_closed(gap_before, gap_with_pattern) - gap_closed(gap_before, gap_after)
+            gain_pattern = describe_pattern(pattern, reference.ranges_m, bearings_deg, gap_with_pattern, share)
             say(f"a fixed gain pattern explains {100 * gain_pattern.share_of_gap:.0f}% of the gap before on top of "
                 f"the selected effects: {gain_pattern.describe()}")
 
@@ -209,7 +218,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         gap_after_selected=gap_after,
         gap_after_selected_ci95=ci_after,
         classifier_auc_after_selected=Auc(*auc_after),
-        gap_closed=_closed(gap_before, gap_after),
+        gap_closed=gap_closed(gap_before, gap_after),
         family_gaps_after_selected=families_after,
         residual=residual,
         maps_before=maps_before,
@@ -222,6 +231,13 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         bootstrap_resamples=config.bootstrap,
         seconds=time.perf_counter() - started,
         examples=Examples(raw_eval[0], after_images[0], real_hold[0]))
+
+
+def _statistics(images: np.ndarray, config: StatisticsConfig, workers: int) -> dict[str, np.ndarray]:
+    """frame_statistics of many frames, in `workers` chunks side by side (rows in frame order)."""
+    chunks = np.array_split(np.arange(len(images)), max(1, min(workers, len(images) // 8)))
+    parts = parallel_map(lambda index: frame_statistics(images[index], config), chunks, workers)
+    return {family: np.concatenate([part[family] for part in parts]) for family in parts[0]}
 
 
 def _selected_effects(selection: Selection, gap_before: float) -> tuple[SelectedEffect, ...]:
@@ -252,10 +268,6 @@ def _ambiguous_groups(path: Sequence[Step], gap_before: float, threshold: float)
                 groups.append(AmbiguousGroup(index, members, shares))
         previous = step.gap
     return tuple(groups)
-
-
-def _closed(before: float, after: float) -> float:
-    return float(1.0 - after / before) if before > 0 else 0.0
 
 
 def _top_families(families: dict[str, float]) -> tuple[Share, ...]:

@@ -71,6 +71,11 @@ def gap(a: Stats, b: Stats, scale: FeatureScale) -> float:
     return headline(family_gaps(a, b, scale))
 
 
+def gap_closed(before: float, after: float) -> float:
+    """The share of the gap `before` that is gone `after` (0 when there was none)."""
+    return float(1.0 - after / before) if before > 0 else 0.0
+
+
 def bootstrap_interval(a: Stats, b: Stats, scale: FeatureScale, n_boot: int = 200, level: float = 0.95,
                        seed: int = 0) -> tuple[float, float]:
     """Interval of the headline gap from frame resamplings of both sets (percentiles, centred on the estimate)."""

@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
-from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap
+from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
+from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import Alternative, GainPatternFit, GainSpot, RankedEffect, StandIn, Step
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
@@ -329,17 +330,18 @@ def rank_effects(names: Sequence[str], problem: SelectionProblem, config: Diagno
                  progress: Callable[[str], None] | None = None) -> list[Solo]:
     """Every effect fitted alone, then judged on the held-out split; best (smallest gap) first, each with how
     often it ranks first over bootstrap resamples of the held-out frames."""
-    fitted = []
-    for name in names:
+    def solo(name: str) -> tuple[str, Fit, float, Stats | None]:
         fit = fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, search=config.search,
                          statistics=config.statistics, normalize=config.normalize)
-        after, stats = problem.holdout([fit.effect], None)
+        return (name, fit, *problem.holdout([fit.effect], None))
+
+    fitted = parallel_map(solo, names, config.workers)
+    for name, fit, after, _ in fitted:
         if progress:
             progress(f"{name}: held-out gap {after:.4g} ({fit.evaluations} fits)")
-        fitted.append((name, fit, after, stats))
     frequency = _frequencies([stats for *_, stats in fitted], problem, config, seed=config.seed + 500)
     solos = [Solo(RankedEffect(name, fit.effect.params(), after, fit.fit_gap,
-                               _closed(problem.gap_before, after), float(freq)), fit.effect, stats)
+                               gap_closed(problem.gap_before, after), float(freq)), fit.effect, stats)
              for (name, fit, after, stats), freq in zip(fitted, frequency, strict=True)]
     return sorted(solos, key=lambda solo: solo.ranked.gap_after)
 
@@ -349,10 +351,6 @@ def _frequencies(stats: Sequence[Stats | None], problem: SelectionProblem, confi
     if problem.target is None or not stats:
         return np.full(len(stats), math.nan)
     return best_frequency(stats, problem.target, problem.scale, config.bootstrap, seed=seed)
-
-
-def _closed(before: float, after: float) -> float:
-    return float(1.0 - after / before) if before > 0 else 0.0
 
 
 def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: DiagnoseConfig,
@@ -417,16 +415,16 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             stopped = f"the gap left is below {c.min_gain:.0%} of the gap before (nothing left to explain)"
             break
         if chosen:
-            screened = []
-            for solo in remaining:
+            def screen(solo: Solo, chosen: list[Effect] = chosen) -> tuple[float, list[Effect], Effect, Solo]:
                 base = refit_each(chosen, around=[solo.effect])
                 fit = refit(solo.ranked.name, base, solo.effect)
-                screened.append((fit.fit_gap, base, fit.effect, solo))
+                return fit.fit_gap, base, fit.effect, solo
+
+            screened = parallel_map(screen, remaining, c.workers)
             shortlist = sorted(screened, key=lambda t: t[0])[:c.candidates_per_step]
-            trials = []
-            for _, base, effect, solo in shortlist:
-                gap_value, stats = holdout([*base, effect])
-                trials.append((gap_value, base, effect, solo, stats))
+            judged = parallel_map(lambda t: holdout([*t[1], t[2]]), shortlist, c.workers)
+            trials = [(gap_value, base, effect, solo, stats)
+                      for (_, base, effect, solo), (gap_value, stats) in zip(shortlist, judged, strict=True)]
             frequency = _frequencies([t[4] for t in trials], problem, c, seed=c.seed + 600 + len(chosen))
             alternatives = tuple(Alternative(t[3].ranked.name, t[0], float(f)) for t, f in
                                  zip(trials, frequency, strict=True))
@@ -458,16 +456,20 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
 
     while c.prune and len(chosen) >= 2:
         # the candidate for removal: the effect whose absence hurts least as the others stand
-        dropped = min(chosen, key=lambda e: holdout([other for other in chosen if other is not e])[0])
+        without = parallel_map(lambda e, chosen=chosen: holdout([o for o in chosen if o is not e])[0], chosen,
+                               c.workers)
+        dropped = chosen[int(np.argmin(without))]
         # judged with both sides refitted alike: the others were fitted while `dropped` was present, and a refit
         # of the rest alone would credit the removal with what is only a better fit
-        full = refit_each(chosen)
-        gap_full, stats_full = holdout(full)
+        def refit_side(effects: list[Effect]) -> tuple[list[Effect], float, Stats | None]:
+            effects = refit_each(effects)
+            return (effects, *holdout(effects))
+
+        sides = [chosen, [e for e in chosen if e.name != dropped.name]]
+        (full, gap_full, stats_full), (rest, gap_without, stats_without) = parallel_map(refit_side, sides, c.workers)
         if gap_full < current:
             chosen, current, current_stats = full, gap_full, stats_full
             path.append(Step("refit", "all", gap_full))
-        rest = refit_each([e for e in chosen if e.name != dropped.name])
-        gap_without, stats_without = holdout(rest)
         cost = gap_without - current
         significant = lower_bound(stats_without, current_stats, 100 + len(chosen))[1] > 0
         if cost >= c.min_gain * max(gap_before, 1e-12) and significant:
@@ -477,20 +479,27 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
 
-    stand_ins = []
-    for name in [e.name for e in chosen] if c.gain_check else []:
-        effect = next(e for e in chosen if e.name == name)  # as last refitted
-        rest = [e for e in chosen if e.name != name]
+    def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float]:
+        rest = [e for e in chosen if e is not effect]
         pattern = fit_gain_pattern(problem, rest, c)
-        gap_gain, _ = holdout(rest, pattern)
+        return pattern, holdout(rest, pattern)[0]
+
+    stand_ins = []
+    # every selected effect's stand-in pattern at once; one is refitted only if an earlier one was dropped
+    patterns = dict(zip([e.name for e in chosen], parallel_map(pattern_in_place_of, chosen, c.workers),
+                        strict=True)) if c.gain_check else {}
+    changed = False
+    for name in list(patterns):
+        effect = next(e for e in chosen if e.name == name)  # as last refitted
+        pattern, gap_gain = pattern_in_place_of(effect, chosen) if changed else patterns[name]
         if current < gap_gain:
             continue
-        rest = refit_each(rest)
+        rest = refit_each([e for e in chosen if e is not effect])
         gap_rest, stats_rest = holdout(rest)
         fit = describe_pattern(pattern, problem.ranges_m, problem.bearings_deg, gap_gain,
-                               _closed(gap_before, gap_gain) - _closed(gap_before, gap_rest))
+                               gap_closed(gap_before, gap_gain) - gap_closed(gap_before, gap_rest))
         stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain))
-        chosen, current, current_stats = rest, gap_rest, stats_rest
+        chosen, current, current_stats, changed = rest, gap_rest, stats_rest, True
         path.append(Step("gain_stand_in", effect.name, gap_rest))
         if progress:
             progress(f"{effect.name} does no more than a gain pattern ({fit.describe()}): not blamed; held-out "
