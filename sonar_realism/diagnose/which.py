@@ -41,6 +41,7 @@ SPIKE_SIGMA = 4.0
 SPIKE_MIN_DB = 1.0
 GAIN_LIMIT_DB = 20.0
 SPOT_MIN_DB = 1.0
+MEASURED_WEIGHT = 0.3  # of the strongest row's or beam's weight (sqrt of mean signal): about 10% of its signal
 MAX_SPOTS = 8
 
 
@@ -238,7 +239,9 @@ def _fixed_shape(halves: Sequence[np.ndarray], weight: np.ndarray, detrend: bool
         centred.append(half - trend)
     smooth = [_running_smooth(c) for c in centred]
     channels = [_isolated(c - sm) for c, sm in zip(centred, smooth, strict=True)]
-    return _agree(*smooth) + _agree(*channels)
+    # a row or beam with almost no signal in either set (the empty water column) measures no gain of its own
+    measured = weight >= MEASURED_WEIGHT * weight.max()
+    return _agree(*smooth) + _agree(*channels) * measured
 
 
 def _agree(a: np.ndarray, b: np.ndarray) -> np.ndarray:
