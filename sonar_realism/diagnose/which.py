@@ -376,9 +376,10 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
-    others: if that does at least as well on held-out frames, the effect is dropped (a "stand-in"). Not a
-    significance test: the burden is on the gain pattern, so a true effect that the statistics tell from a gain
-    only weakly (a multipath ghost on a seabed-filled scene) is kept.
+    others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
+    significantly better (the paired bootstrap's lower bound above 0), the effect is dropped (a "stand-in"). The
+    burden is on the gain pattern, so a true effect that the statistics tell from a gain only weakly (a multipath
+    ghost on a seabed-filled scene) is kept.
     """
     c = config
     chosen: list[Effect] = []
@@ -482,20 +483,25 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
 
-    def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float]:
+    def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float, Stats | None]:
         rest = [e for e in chosen if e is not effect]
         pattern = fit_gain_pattern(problem, rest, c)
-        return pattern, holdout(rest, pattern)[0]
+        return (pattern, *holdout(rest, pattern))
 
     stand_ins = []
     # every selected effect's stand-in pattern at once; one is refitted only if an earlier one was dropped
     patterns = dict(zip([e.name for e in chosen], parallel_map(pattern_in_place_of, chosen, c.workers),
                         strict=True)) if c.gain_check else {}
     changed = False
-    for name in list(patterns):
+    for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
-        pattern, gap_gain = pattern_in_place_of(effect, chosen) if changed else patterns[name]
+        pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
         if current < gap_gain:
+            continue
+        # parsimony: a level and a ramp (two numbers, as an effect has) need only do as well; a pattern with a
+        # shape (dozens of numbers) must do better beyond the noise, or a ghost that brightens the far range
+        # (multipath) is lost to a range shape that mimics its mean
+        if pattern.range_shape_db is not None and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0:
             continue
         rest = refit_each([e for e in chosen if e is not effect])
         gap_rest, stats_rest = holdout(rest)
