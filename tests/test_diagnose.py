@@ -7,17 +7,21 @@ import numpy as np
 import pytest
 
 from sonar_realism.cli import main
-from sonar_realism.diagnose.diagnosis import DiagnoseConfig, diagnose, split_indices
+from sonar_realism.diagnose import DiagnoseConfig, diagnose, load_diagnosis
+from sonar_realism.diagnose.config import SearchConfig
+from sonar_realism.diagnose.diagnosis import _ambiguous_groups, split_indices
 from sonar_realism.diagnose.gap import (
     FeatureScale,
+    best_frequency,
     bootstrap_gain,
     bootstrap_interval,
     classifier_auc,
     family_gaps,
     gap,
 )
+from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
-from sonar_realism.diagnose.which import RankedEffect, SearchConfig, greedy_select
+from sonar_realism.diagnose.which import SelectionProblem, Solo, greedy_select
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
@@ -62,8 +66,8 @@ def test_where_map_points_at_the_cell_that_differs():
     sa, sb = frame_statistics(sim), frame_statistics(real)
     maps = gap_maps(wa, wb, FeatureScale.pooled(wa, wb), sa, sb, FeatureScale.pooled(sa, sb), config)
     hottest = hot_cells(maps.cells, uniform_ranges(128, 10.0), uniform_azimuths(128, 2.0), top=1)[0]
-    assert (hottest["range_cell"], hottest["bearing_cell"]) == (2, 6)
-    assert 2.5 <= hottest["range_m"][0] <= hottest["range_m"][1] <= 3.8
+    assert (hottest.range_cell, hottest.bearing_cell) == (2, 6)
+    assert 2.5 <= hottest.range_m[0] <= hottest.range_m[1] <= 3.8
 
 
 def test_paired_gain_is_significant_only_for_a_real_improvement():
@@ -86,9 +90,9 @@ def test_where_maps_point_at_a_narrow_band_by_range_bin():
     sa, sb = frame_statistics(sim), frame_statistics(real)
     maps = gap_maps(wa, wb, FeatureScale.pooled(wa, wb), sa, sb, FeatureScale.pooled(sa, sb), config)
     ranges = uniform_ranges(128, 10.0)
-    top = hot_bins(maps.range_bins, ranges, "range_m", top=1)[0]
-    assert top["bin"] == 20  # 32 bins of 4 rows: rows 80-83
-    assert top["range_m"][0] <= ranges[81] <= top["range_m"][1]
+    top = hot_bins(maps.range_bins, ranges, top=1)[0]
+    assert top.bin == 20  # 32 bins of 4 rows: rows 80-83
+    assert top.span[0] <= ranges[81] <= top.span[1]
 
 
 def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():
@@ -97,11 +101,14 @@ def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():
     rng = np.random.default_rng(0)
     real = [apply_effects(f, [noise], rng) for f in sim_frames(10, seed=2)]
     config = dataclasses.replace(FAST, effects=("tvg_noise", "ring_down"))
-    result = diagnose(sim, real, config).summary
-    assert result["ranked_effects"][0]["name"] == "tvg_noise"
-    assert result["selected"][0] == "tvg_noise"
-    assert result["gap_after_selected"] < 0.3 * result["gap_before"]
-    assert result["ranked_effects"][0]["params"]["noise_amplitude"] == pytest.approx(0.2, abs=0.12)
+    result = diagnose(sim, real, config)
+    assert result.ranked_effects[0].name == "tvg_noise"
+    assert result.selected[0] == "tvg_noise"
+    assert result.gap_after_selected < 0.3 * result.gap_before
+    assert result.ranked_effects[0].params["noise_amplitude"] == pytest.approx(0.2, abs=0.12)
+    assert result.verdict == "selected" and result.ambiguous == ()
+    chosen = result.selected_effects[0]
+    assert chosen.stability > 0.8 and chosen.share > 0.5  # told apart from ring_down in every resample
 
 
 def test_a_plain_gain_difference_is_not_blamed_on_an_effect():
@@ -113,13 +120,72 @@ def test_a_plain_gain_difference_is_not_blamed_on_an_effect():
         gain = (10 ** ((-3.0 - 4.0 * t) / 20)).astype(np.float32)[:, None]
         real.append(frame.replace(intensity=frame.normalized() * gain, intensity_scale=1.0))
     config = dataclasses.replace(FAST, effects=("tvg_noise", "gamma_quantization", "ring_down"))
-    unchecked = diagnose(sim_frames(10, seed=1), real, dataclasses.replace(config, gain_check=False)).summary
-    assert unchecked["selected"] != []  # without the check, an effect's gain parameter takes the blame
-    result = diagnose(sim_frames(10, seed=1), real, config).summary
-    assert result["selected"] == []
-    assert {s["effect"] for s in result["gain_stand_ins"]} == set(unchecked["selected"])
-    assert [step["step"] for step in result["selection_path"]][-1] == "gain_stand_in"
-    assert result["residual"]["significant"]
+    unchecked = diagnose(sim_frames(10, seed=1), real, dataclasses.replace(config, gain_check=False))
+    assert unchecked.selected != ()  # without the check, an effect's gain parameter takes the blame
+    result = diagnose(sim_frames(10, seed=1), real, config)
+    assert result.selected == ()
+    assert {s.effect for s in result.gain_stand_ins} == set(unchecked.selected)
+    assert result.selection_path[-1].action == "gain_stand_in"
+    assert result.residual.significant
+    assert result.verdict == "residual_only"
+    pattern = result.residual.gain_pattern  # reported as the residual's gain pattern: darker overall
+    assert pattern is not None and pattern.share_of_gap > 0.2 and pattern.level_db < -1.0
+
+
+def striped(frames: list[SonarImage], beams: np.ndarray, gains_db: np.ndarray) -> list[SonarImage]:
+    """Fixed channel gain errors: the given beams `gains_db` off, every frame (a fault outside the catalogue)."""
+    gain = np.ones(frames[0].n_beams, dtype=np.float32)
+    gain[beams] = 10 ** (gains_db / 20)
+    return [f.replace(intensity=np.clip(f.normalized() * gain[None, :], 0, 1), intensity_scale=1.0) for f in frames]
+
+
+def test_column_stripes_are_left_unexplained_at_their_beams():
+    # Sim and "real" alternate along one trajectory; "real" has six channels with fixed gain errors. No catalogued
+    # effect may take the blame (elevation_spread did before the gain pattern had a per-beam shape), and the
+    # residual's gain pattern must point at those beams.
+    frames = sim_frames(24, seed=3)
+    beams = np.array([14, 37, 61, 80, 99, 117])
+    gains_db = np.array([6.0, -6.0, 5.0, -5.0, 6.0, -6.0])
+    config = dataclasses.replace(FAST, effects=("elevation_spread", "tvg_noise", "beam_sidelobes"))
+    result = diagnose(frames[0::2], striped(frames[1::2], beams, gains_db), config)
+    assert result.selected == ()
+    pattern = result.residual.gain_pattern
+    assert pattern is not None
+    found = {spot.index for spot in pattern.beams}
+    assert sum(any(abs(b - f) <= 1 for f in found) for b in beams) >= 5
+    for spot in pattern.beams:
+        if spot.index in beams:
+            assert np.sign(spot.gain_db) == np.sign(gains_db[list(beams).index(spot.index)])
+
+
+def test_bootstrap_frequency_splits_between_equals_and_goes_to_the_clearly_better():
+    target = frame_statistics(np.sqrt(speckled(12, 5)))
+    raw = speckled(12, 6)
+    before, better = frame_statistics(raw), frame_statistics(np.sqrt(raw))
+    scale = FeatureScale.pooled(before, target)
+    assert best_frequency([before, better], target, scale, 50).tolist() == [0.0, 1.0]
+    twin = frame_statistics(np.sqrt(raw) * 1.0001)
+    tied = best_frequency([better, twin, None], target, scale, 50)
+    assert 0.0 < tied[0] < 1.0 and tied[2] == 0.0 and tied.sum() == pytest.approx(1.0)
+
+
+def test_a_step_whose_runner_up_wins_often_is_reported_as_ambiguous():
+    step_one = (Alternative("motion_blur", 0.40, 0.55), Alternative("range_blur", 0.42, 0.40),
+                Alternative("speckle", 0.9, 0.05))
+    path = [Step("start", "none", 1.0), Step("add", "motion_blur", 0.40, step_one),
+            Step("add", "tvg_noise", 0.20, (Alternative("tvg_noise", 0.20, 0.95), Alternative("speckle", 0.35, 0.05)))]
+    groups = _ambiguous_groups(path, 1.0, threshold=0.2)
+    assert len(groups) == 1 and groups[0].step == 1
+    assert [a.effect for a in groups[0].effects] == ["motion_blur", "range_blur"]
+    assert groups[0].shares == pytest.approx((0.60, 0.58))
+
+
+def test_too_few_frames_give_no_ranking_but_say_so():
+    sim, real = sim_frames(5, seed=1), sim_frames(5, seed=2)
+    result = diagnose(sim, real, dataclasses.replace(FAST, effects=("tvg_noise",)))
+    assert result.verdict == "not_enough_frames"
+    assert result.ranked_effects == () and result.selected == ()
+    assert "not enough frames" in result.selection_stopped
 
 
 def test_pruning_drops_an_effect_the_later_ones_make_redundant():
@@ -130,20 +196,21 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
     a, b = make_effect("motion_blur"), make_effect("beam_sidelobes")
     table = {(): 1.0, ("motion_blur",): 0.6, ("beam_sidelobes",): 0.31, ("beam_sidelobes", "motion_blur"): 0.3}
 
-    def holdout(effects):
+    def holdout(effects, gain=None):
         return table[tuple(sorted(e.name for e in effects))], None
 
-    ranked = [(RankedEffect("motion_blur", a.params(), 0.6, 0.0), a),
-              (RankedEffect("beam_sidelobes", b.params(), 0.7, 0.0), b)]
-    common = dict(gap_before=1.0, fit_frames=frames[:2], fit_target=stats, holdout=holdout, scale=scale,
-                  search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(), max_effects=3,
-                  min_gain=0.05, candidates_per_step=2, backfit=False, gain_check=False)
-    pruned = greedy_select(ranked, **common)
+    ranked = [Solo(RankedEffect("motion_blur", a.params(), 0.6, 0.0, 0.4, 1.0), a, None),
+              Solo(RankedEffect("beam_sidelobes", b.params(), 0.7, 0.0, 0.3, 0.0), b, None)]
+    problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
+                               frames[0].ranges_m, np.degrees(frames[0].azimuths_rad))
+    config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(), max_effects=3,
+                            min_gain=0.05, candidates_per_step=2, backfit=False, gain_check=False)
+    pruned = greedy_select(ranked, problem, config)
     assert [(s.action, s.effect) for s in pruned.path] == [
         ("start", "none"), ("add", "motion_blur"), ("add", "beam_sidelobes"), ("remove", "motion_blur")]
     assert [e.name for e in pruned.effects] == ["beam_sidelobes"]
     assert pruned.path[-1].gap == 0.31
-    kept = greedy_select(ranked, **common, prune=False)
+    kept = greedy_select(ranked, problem, dataclasses.replace(config, prune=False))
     assert [e.name for e in kept.effects] == ["motion_blur", "beam_sidelobes"]
 
 
@@ -164,6 +231,11 @@ def test_cli_writes_diagnosis_json_and_report(tmp_path):
     assert {"name", "params", "gap_after"} <= set(result["ranked_effects"][0])
     assert result["ranked_effects"][0]["name"] == "gamma_quantization"
     assert isinstance(result["gap_before"], float) and result["gap_before"] > 0
+    assert all(isinstance(name, str) for name in result["selected"])
+    loaded = load_diagnosis(tmp_path / "out" / "diagnosis.json")  # read back as the typed result it was
+    assert loaded.top1 == "gamma_quantization" and loaded.gap_before == result["gap_before"]
+    assert loaded.maps_before.cells.shape == (8, 8) and loaded.examples is None
+    assert loaded.to_json() == result
     assert (tmp_path / "out" / "report.md").read_text().startswith("# Sim-to-real gap diagnosis")
     assert (tmp_path / "out" / "diag_cells_after.png").stat().st_size > 0
     page = (tmp_path / "out" / "report.html").read_text()

@@ -4,7 +4,7 @@ catalogue stays as residual, found in the right place."""
 import numpy as np
 import pytest
 
-from sonar_realism.diagnose.diagnosis import DiagnoseConfig
+from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
 from sonar_realism.diagnose.validation import (
     ALTERNATIVES,
     HIDDEN_RANGES,
@@ -13,7 +13,6 @@ from sonar_realism.diagnose.validation import (
     check_catalogue_defaults,
     make_real,
 )
-from sonar_realism.diagnose.which import SearchConfig
 from sonar_realism.errors import ConfigError
 from sonar_realism.sim import SensorConfig, simulate
 from sonar_realism.sim.effects import EFFECTS
@@ -42,10 +41,10 @@ def test_every_catalogue_effect_has_an_alternative_and_hidden_ranges_inside_its_
     ("gamma_quantization", {"gain": 1.5, "gamma": 0.5}),
 ])
 def test_single_effect_by_another_implementation_is_identified(sets, name, params):
-    blind, diagnosis = blind_run(*sets, {name: params}, CONFIG)
-    assert blind.top1 == name
-    assert blind.selected[:1] == [name]
-    assert blind.gap_closed > 0.6
+    blind = blind_run(*sets, {name: params}, CONFIG)
+    assert blind.diagnosis.top1 == name
+    assert blind.diagnosis.selected[:1] == (name,)
+    assert blind.diagnosis.gap_closed > 0.6
     assert blind.param_error[name] < 0.35
 
 
@@ -54,22 +53,22 @@ def test_withheld_lens_reflection_is_left_as_residual_at_its_range():
     # (two different scenes differ in ways that 8 held-out frames cannot tell from the band).
     frames = [frame for frame, _ in simulate(n=32, seed=7, sensor=SENSOR)]
     hidden = {"lens_reflection": {"at_fraction": 0.62, "width_fraction": 0.02, "amplitude": 0.5}}
-    blind, diagnosis = blind_run(frames[0::2], frames[1::2], hidden, CONFIG)
-    residual = diagnosis.summary["residual"]
-    assert blind.gap_closed < 0.5  # no catalogued effect explains a fixed bright band
-    assert residual["significant"]
+    diagnosis = blind_run(frames[0::2], frames[1::2], hidden, CONFIG).diagnosis
+    residual = diagnosis.residual
+    assert diagnosis.gap_closed < 0.5  # no catalogued effect explains a fixed bright band
+    assert residual.significant
     band_m = SENSOR.min_range_m + 0.62 * (SENSOR.max_range_m - SENSOR.min_range_m)
-    for cell in residual["cells"][:3]:  # the residual lies along the band's range, whatever the bearing
-        assert cell["range_m"][0] - 0.7 <= band_m <= cell["range_m"][1] + 0.7
+    for cell in residual.where.cells[:3]:  # the residual lies along the band's range, whatever the bearing
+        assert cell.range_m[0] - 0.7 <= band_m <= cell.range_m[1] + 0.7
 
 
 def test_no_effect_is_selected_when_nothing_was_hidden():
     # Sim and "real" alternate along one trajectory and nothing is hidden: whatever the fits find is sampling
     # noise, which the significance test must refuse.
     frames = [frame for frame, _ in simulate(n=32, seed=9, sensor=SENSOR)]
-    blind, diagnosis = blind_run(frames[0::2], frames[1::2], {}, CONFIG)
-    assert blind.selected == []
-    assert "selection_stopped" in diagnosis.summary
+    diagnosis = blind_run(frames[0::2], frames[1::2], {}, CONFIG).diagnosis
+    assert diagnosis.selected == ()
+    assert diagnosis.verdict == "residual_only" and diagnosis.selection_stopped
 
 
 def test_make_real_rejects_effects_it_cannot_make(sets):

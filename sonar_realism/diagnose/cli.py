@@ -15,7 +15,8 @@ import numpy as np
 from tqdm import tqdm
 
 from sonar_realism.config import from_dict, parse_grid
-from sonar_realism.diagnose.diagnosis import DiagnoseConfig, diagnose
+from sonar_realism.diagnose.config import DiagnoseConfig
+from sonar_realism.diagnose.diagnosis import diagnose
 from sonar_realism.diagnose.report import write_report
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
@@ -62,9 +63,10 @@ def run(args: argparse.Namespace) -> int:
 
         diagnosis = diagnose(sim, real, config, progress=progress)
     report = write_report(diagnosis, args.out)
-    s = diagnosis.summary
-    print(f"gap before {s['gap_before']:.4g} -> after {', '.join(s['selected']) or 'nothing'}: "
-          f"{s['gap_after_selected']:.4g} ({100 * s['gap_closed']:.0f}% closed); report: {report}")
+    d = diagnosis
+    ambiguous = "".join(f"; ambiguous: {' or '.join(a.effect for a in group.effects)}" for group in d.ambiguous)
+    print(f"gap before {d.gap_before:.4g} -> after {', '.join(d.selected) or 'nothing'}: "
+          f"{d.gap_after_selected:.4g} ({100 * d.gap_closed:.0f}% closed; {d.verdict}{ambiguous}); report: {report}")
     return 0
 
 

@@ -1,5 +1,6 @@
-"""The whole diagnosis: gap (how big), where (which cells, levels, bands), which (effects ranked and selected),
-how far (the gap after each effect and after the selected set), and the residual nothing in the catalogue explains.
+"""The whole diagnosis: gap (how big), where (which cells, levels, bands), which (effects ranked and selected, with
+their stability and the ambiguous choices), how far (the gap after each effect and after the selected set), and
+the residual nothing in the catalogue explains (with the fixed gain pattern that explains part of it).
 
 Both sets are split once: fit frames (parameter estimation) and held-out frames (every gap that is reported).
 """
@@ -9,15 +10,36 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Literal
 
 import numpy as np
 
-from sonar_realism.diagnose.gap import FeatureScale, Stats, bootstrap_interval, classifier_auc, family_gaps, headline
-from sonar_realism.diagnose.where import (
+from sonar_realism.diagnose.config import MIN_FRAMES_PER_SPLIT, DiagnoseConfig, check_effect_names
+from sonar_realism.diagnose.gap import (
+    FeatureScale,
+    Stats,
+    bootstrap_interval,
+    classifier_auc,
+    family_gaps,
+    gap_closed,
+    headline,
+)
+from sonar_realism.diagnose.parallel import parallel_map
+from sonar_realism.diagnose.result import (
+    AmbiguousGroup,
+    Auc,
+    Diagnosis,
+    Examples,
+    FrameCounts,
     GapMaps,
-    WhereConfig,
+    Grid,
+    Residual,
+    SelectedEffect,
+    Share,
+    Step,
+    Verdict,
+    Where,
+)
+from sonar_realism.diagnose.where import (
     band_names,
     concentration,
     gap_maps,
@@ -27,11 +49,12 @@ from sonar_realism.diagnose.where import (
     where_features,
 )
 from sonar_realism.diagnose.which import (
-    RankedEffect,
-    SearchConfig,
-    Step,
-    check_effect_names,
+    GainPattern,
+    Selection,
+    SelectionProblem,
     corrected_images,
+    describe_pattern,
+    fit_gain_pattern,
     greedy_select,
     rank_effects,
 )
@@ -40,72 +63,10 @@ from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.effects import Effect
 
-MIN_FRAMES_PER_SPLIT = 2
-
-
-@dataclass(frozen=True)
-class DiagnoseConfig:
-    """holdout_fraction: share of each set kept for measuring; fit_frames: sim frames the parameter search uses;
-    eval_frames / real_frames: cap on held-out sim / real frames per measurement (cost grows with them);
-    max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
-    gap before to be selected); significance: one-sided level of the paired bootstrap test an effect's gain must
-    pass to be selected (0 = no test); backfit: refit the chosen effects around each new candidate;
-    prune: after forward selection, drop effects the others make redundant; gain_check: drop selected effects
-    that do no better than a plain gain difference (level and range ramp); effects: the candidates (empty = the
-    whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets
-    exported that way)."""
-
-    holdout_fraction: float = 0.5
-    fit_frames: int = 12
-    eval_frames: int = 96
-    real_frames: int = 256
-    max_effects: int = 4
-    min_gain: float = 0.05
-    candidates_per_step: int = 3
-    significance: float = 0.95
-    backfit: bool = True
-    prune: bool = True
-    gain_check: bool = True
-    effects: tuple[str, ...] = ()
-    normalize: Literal["none", "max"] = "none"
-    bootstrap: int = 200
-    seed: int = 0
-    search: SearchConfig = field(default_factory=SearchConfig)
-    statistics: StatisticsConfig = field(default_factory=StatisticsConfig)
-    where: WhereConfig = field(default_factory=WhereConfig)
-
-    def validate(self) -> None:
-        if not 0.0 < self.holdout_fraction < 1.0:
-            raise ConfigError(f"diagnose.holdout_fraction: must be in (0, 1), got {self.holdout_fraction}")
-        if min(self.fit_frames, self.eval_frames, self.real_frames) < MIN_FRAMES_PER_SPLIT:
-            raise ConfigError(f"diagnose: fit_frames, eval_frames and real_frames must be >= {MIN_FRAMES_PER_SPLIT}")
-        if self.max_effects < 0 or self.candidates_per_step < 1 or not 0.0 <= self.min_gain < 1.0:
-            raise ConfigError("diagnose: max_effects >= 0, candidates_per_step >= 1, 0 <= min_gain < 1")
-        if not 0.0 <= self.significance < 1.0:
-            raise ConfigError(f"diagnose.significance: must be in [0, 1), got {self.significance}")
-        if self.normalize not in ("none", "max"):
-            raise ConfigError(f"diagnose.normalize: 'none' or 'max', got {self.normalize!r}")
-        check_effect_names(self.effects)
-        self.search.validate()
-        self.statistics.validate()
-        self.where.validate()
-
-
-@dataclass
-class Diagnosis:
-    """Everything the report needs. `to_json()` is the diagnosis.json content."""
-
-    summary: dict[str, Any]
-    maps_before: GapMaps
-    maps_after: GapMaps
-    family_before: dict[str, float]
-    family_after: dict[str, float]
-    ranked: list[RankedEffect]
-    path: list[Step]
-    examples: dict[str, np.ndarray]
-
-    def to_json(self) -> dict[str, Any]:
-        return self.summary
+# Fewer held-out frames a side than this and a bootstrap resample repeats most of them: no ranking is told apart.
+MIN_FRAMES_TO_TELL = 4
+GAP_MEASURE = ("mean over statistic families of the unbiased squared standardised mean difference of per-frame "
+               "features (0 = same statistics); held-out frames only")
 
 
 def split_indices(n: int, holdout_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -138,10 +99,12 @@ def check_sets(sim: Sequence[SonarImage], real: Sequence[SonarImage]) -> None:
                           f"{need[0]} ranges x {need[1]} beams")
 
 
-def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: DiagnoseConfig = DiagnoseConfig(),
+def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: DiagnoseConfig | None = None,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """The diagnosis of `sim` against `real` (default config: `DiagnoseConfig()`)."""
     started = time.perf_counter()
     say = progress or (lambda message: None)
+    config = config or DiagnoseConfig()
     config.validate()
     sim = _flatten_samples(sim)
     real = _flatten_samples(real)
@@ -155,26 +118,23 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     real_hold = _images([real[i] for i in real_hold_idx[:config.real_frames]], config.normalize)
 
     stats_cfg = config.statistics
-    real_fit_stats = frame_statistics(real_fit, stats_cfg)
-    real_hold_stats = frame_statistics(real_hold, stats_cfg)
     raw_eval = corrected_images(eval_frames, [], config.search.seed, config.normalize)
-    raw_stats = frame_statistics(raw_eval, stats_cfg)
+    # the real side's statistics are computed once, on every core: each later measurement reuses them
+    real_fit_stats, real_hold_stats, raw_stats = (_statistics(images, stats_cfg, config.workers)
+                                                  for images in (real_fit, real_hold, raw_eval))
     scale = FeatureScale.pooled(raw_stats, real_hold_stats)
     say(f"statistics of {len(eval_frames)} sim and {len(real_hold)} real held-out frames")
 
-    def holdout_stats(effects: Sequence[Effect]) -> tuple[np.ndarray, Stats]:
-        images = corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize)
+    def holdout_stats(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[np.ndarray, Stats]:
+        images = corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize, gain)
         return images, frame_statistics(images, stats_cfg)
 
-    def holdout(effects: Sequence[Effect]) -> tuple[float, Stats | None]:
+    def holdout(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[float, Stats | None]:
         try:
-            stats = holdout_stats(effects)[1]
+            stats = holdout_stats(effects, gain)[1]
         except FrameError:  # an effect that produces invalid frames explains nothing
             return math.inf, None
         return headline(family_gaps(stats, real_hold_stats, scale)), stats
-
-    def holdout_gap(effects: Sequence[Effect]) -> float:
-        return holdout(effects)[0]
 
     families_before = family_gaps(raw_stats, real_hold_stats, scale)
     gap_before = headline(families_before)
@@ -188,15 +148,23 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     maps_before = gap_maps(where_raw, where_real, where_scale, raw_stats, real_hold_stats, scale, config.where,
                            stats_cfg.profile_bins)
 
-    ranked_pairs = rank_effects(names, fit_frames, real_fit_stats, holdout_gap, scale, config.search, stats_cfg,
-                                config.normalize, say)
-    selection = greedy_select(ranked_pairs, gap_before, fit_frames, real_fit_stats, holdout, scale,
-                              config.search, stats_cfg, config.max_effects, config.min_gain,
-                              config.candidates_per_step, config.normalize, say, target=real_hold_stats,
-                              stats_before=raw_stats,
-                              significance=config.significance, bootstrap=config.bootstrap,
-                              backfit=config.backfit, seed=config.seed, prune=config.prune,
-                              gain_check=config.gain_check)
+    # Real frames read without geometry (plain PNGs) carry placeholder axes; the sim frames are on the same grid.
+    reference = real[real_hold_idx[0]]
+    if reference.meta.get("geometry_assumed"):
+        reference = eval_frames[0]
+    bearings_deg = np.degrees(reference.azimuths_rad)
+    real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
+    problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
+                               gap_before, reference.ranges_m, bearings_deg)
+    enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
+    if enough:
+        ranked = rank_effects(names, problem, config, say)
+        selection = greedy_select(ranked, problem, config, say)
+    else:
+        ranked = []
+        selection = Selection([], [Step("start", "none", gap_before)],
+                              f"not enough frames to tell: {len(eval_frames)} sim and {len(real_hold)} real "
+                              f"held-out frames, fewer than {MIN_FRAMES_TO_TELL} a side", [], gap_before, raw_stats)
 
     after_images, after_stats = holdout_stats(selection.effects)
     families_after = family_gaps(after_stats, real_hold_stats, scale)
@@ -206,79 +174,117 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     maps_after = gap_maps(where_features(after_images, config.where), where_real, where_scale, after_stats,
                           real_hold_stats, scale, config.where, stats_cfg.profile_bins)
 
+    # A fixed gain pattern on top of the selected effects: what of the residual a gain explains, and where.
+    gain_pattern = None
+    if enough:
+        pattern = fit_gain_pattern(problem, selection.effects, config)
+        gap_with_pattern = holdout(selection.effects, pattern)[0]
+        if gap_with_pattern < gap_after:
+            share = gap_closed(gap_before, gap_with_pattern) - gap_closed(gap_before, gap_after)
+            gain_pattern = describe_pattern(pattern, reference.ranges_m, bearings_deg, gap_with_pattern, share)
+            say(f"a fixed gain pattern explains {100 * gain_pattern.share_of_gap:.0f}% of the gap before on top of "
+                f"the selected effects: {gain_pattern.describe()}")
+
     # What stays of the original gap: where it was and still is. Where the correction itself made things worse
     # is reported apart ("worsened_cells"), so a side effect of a fitted effect is not mistaken for the residual.
     unexplained = GapMaps(*(np.minimum(a, b) for a, b in zip(maps_before.arrays(), maps_after.arrays(),
                                                              strict=True)))
-    # Real frames read without geometry (plain PNGs) carry placeholder axes; the sim frames are on the same grid.
-    reference = real[real_hold_idx[0]]
-    if reference.meta.get("geometry_assumed"):
-        reference = eval_frames[0]
-    ranked = [pair[0] for pair in ranked_pairs]
-    summary = {
-        "gap_measure": "mean over statistic families of the unbiased squared standardised mean difference of "
-                       "per-frame features (0 = same statistics); held-out frames only",
-        "gap_before": gap_before,
-        "gap_before_ci95": list(ci_before),
-        "classifier_auc_before": {"auc": auc_before[0], "stderr": auc_before[1]},
-        "family_gaps_before": families_before,
-        "where_before": _where_summary(maps_before, reference, config),
-        "ranked_effects": [{"name": r.name, "params": r.params, "gap_after": r.gap_after,
-                            "gap_closed": _closed(gap_before, r.gap_after), "fit_gap": r.fit_gap} for r in ranked],
-        "selected": [e.name for e in selection.effects],
-        "selected_params": {e.name: e.params() for e in selection.effects},
-        "selection_path": [{"step": step.action, "effect": step.effect, "gap": step.gap,
-                            "gap_closed": _closed(gap_before, step.gap)} for step in selection.path],
-        "selection_stopped": selection.stopped,
-        "gain_stand_ins": selection.stand_ins,
-        "gap_after_selected": gap_after,
-        "gap_after_selected_ci95": list(ci_after),
-        "classifier_auc_after_selected": {"auc": auc_after[0], "stderr": auc_after[1]},
-        "gap_closed": _closed(gap_before, gap_after),
-        "family_gaps_after_selected": families_after,
-        "residual": {
-            "size": max(gap_after, 0.0),
-            "fraction_of_gap_before": gap_after / gap_before if gap_before > 0 else 0.0,
-            "significant": bool(ci_after[0] > 0.0),
-            "families": _top_families({k: min(v, families_before[k]) for k, v in families_after.items()}),
-            **_where_summary(unexplained, reference, config),
-            "worsened_cells": hot_cells(maps_after.cells - maps_before.cells, reference.ranges_m,
-                                        reference.azimuths_rad),
-        },
-        "frames": {"sim": len(sim), "real": len(real), "sim_fit_used": len(fit_frames),
-                   "sim_heldout_used": len(eval_frames), "real_fit_used": len(real_fit),
-                   "real_heldout_used": len(real_hold)},
-        "grid": {"n_ranges": reference.n_ranges, "n_beams": reference.n_beams,
-                 "range_m": [float(reference.ranges_m[0]), float(reference.ranges_m[-1])],
-                 "bearing_deg": [float(np.degrees(reference.azimuths_rad[0])),
-                                 float(np.degrees(reference.azimuths_rad[-1]))]},
-        "normalize": config.normalize,
-        "seconds": time.perf_counter() - started,
-    }
-    examples = {"sim": raw_eval[0], "corrected": after_images[0], "real": real_hold[0]}
-    return Diagnosis(summary, maps_before, maps_after, families_before, families_after, ranked, selection.path,
-                     examples)
+    residual = Residual(
+        size=max(gap_after, 0.0),
+        fraction_of_gap_before=gap_after / gap_before if gap_before > 0 else 0.0,
+        significant=bool(ci_after[0] > 0.0),
+        families=_top_families({k: min(v, families_before[k]) for k, v in families_after.items()}),
+        where=_where(unexplained, reference, config),
+        worsened_cells=hot_cells(maps_after.cells - maps_before.cells, reference.ranges_m, reference.azimuths_rad),
+        gain_pattern=gain_pattern)
+    ambiguous = _ambiguous_groups(selection.path, gap_before, config.ambiguity)
+    verdict: Verdict = ("not_enough_frames" if not enough else "residual_only" if not selection.effects
+                        else "ambiguous" if ambiguous else "selected")
+    return Diagnosis(
+        verdict=verdict,
+        gap_measure=GAP_MEASURE,
+        gap_before=gap_before,
+        gap_before_ci95=ci_before,
+        classifier_auc_before=Auc(*auc_before),
+        family_gaps_before=families_before,
+        where_before=_where(maps_before, reference, config),
+        ranked_effects=tuple(solo.ranked for solo in ranked),
+        selected=tuple(e.name for e in selection.effects),
+        selected_effects=_selected_effects(selection, gap_before),
+        ambiguous=ambiguous,
+        selection_path=tuple(selection.path),
+        selection_stopped=selection.stopped,
+        gain_stand_ins=tuple(selection.stand_ins),
+        gap_after_selected=gap_after,
+        gap_after_selected_ci95=ci_after,
+        classifier_auc_after_selected=Auc(*auc_after),
+        gap_closed=gap_closed(gap_before, gap_after),
+        family_gaps_after_selected=families_after,
+        residual=residual,
+        maps_before=maps_before,
+        maps_after=maps_after,
+        frames=FrameCounts(len(sim), len(real), len(fit_frames), len(eval_frames), len(real_fit), len(real_hold)),
+        grid=Grid(reference.n_ranges, reference.n_beams,
+                  (float(reference.ranges_m[0]), float(reference.ranges_m[-1])),
+                  (float(bearings_deg[0]), float(bearings_deg[-1]))),
+        normalize=config.normalize,
+        bootstrap_resamples=config.bootstrap,
+        seconds=time.perf_counter() - started,
+        examples=Examples(raw_eval[0], after_images[0], real_hold[0]))
 
 
-def _closed(before: float, after: float) -> float:
-    return float(1.0 - after / before) if before > 0 else 0.0
+def _statistics(images: np.ndarray, config: StatisticsConfig, workers: int) -> dict[str, np.ndarray]:
+    """frame_statistics of many frames, in `workers` chunks side by side (rows in frame order)."""
+    chunks = np.array_split(np.arange(len(images)), max(1, min(workers, len(images) // 8)))
+    parts = parallel_map(lambda index: frame_statistics(images[index], config), chunks, workers)
+    return {family: np.concatenate([part[family] for part in parts]) for family in parts[0]}
 
 
-def _top_families(families: dict[str, float]) -> list[dict[str, float | str]]:
+def _selected_effects(selection: Selection, gap_before: float) -> tuple[SelectedEffect, ...]:
+    """Each selected effect with the share of the gap before it closed when added and its step's stability."""
+    added = {}
+    previous = gap_before
+    for step in selection.path:
+        if step.action == "add":
+            chosen = next(a for a in step.alternatives if a.effect == step.effect)
+            added[step.effect] = ((previous - step.gap) / gap_before if gap_before > 0 else 0.0, chosen.frequency)
+        previous = step.gap
+    return tuple(SelectedEffect(e.name, e.params(), *added.get(e.name, (0.0, math.nan)))
+                 for e in selection.effects)
+
+
+def _ambiguous_groups(path: Sequence[Step], gap_before: float, threshold: float) -> tuple[AmbiguousGroup, ...]:
+    """Steps whose pick lost to another candidate in at least `threshold` of the resamples: the pick and every such
+    candidate, each with the share of the gap before it would close at that step."""
+    groups = []
+    previous = gap_before
+    for index, step in enumerate(path):
+        if step.action == "add":
+            rivals = [a for a in step.alternatives if a.effect != step.effect and a.frequency >= threshold]
+            if rivals:
+                pick = next(a for a in step.alternatives if a.effect == step.effect)
+                members = (pick, *sorted(rivals, key=lambda a: -a.frequency))
+                shares = tuple((previous - a.gap) / gap_before if gap_before > 0 else 0.0 for a in members)
+                groups.append(AmbiguousGroup(index, members, shares))
+        previous = step.gap
+    return tuple(groups)
+
+
+def _top_families(families: dict[str, float]) -> tuple[Share, ...]:
     positive = {k: max(v, 0.0) for k, v in families.items()}
     total = sum(positive.values())
-    return [{"name": k, "gap": families[k], "share": positive[k] / total if total > 0 else 0.0}
-            for k in sorted(positive, key=positive.get, reverse=True)]
+    return tuple(Share(k, families[k], positive[k] / total if total > 0 else 0.0)
+                 for k in sorted(positive, key=positive.get, reverse=True))
 
 
-def _where_summary(maps: GapMaps, reference: SonarImage, config: DiagnoseConfig) -> dict[str, Any]:
+def _where(maps: GapMaps, reference: SonarImage, config: DiagnoseConfig) -> Where:
     n_bands = config.statistics.n_bands
-    return {"cells": hot_cells(maps.cells, reference.ranges_m, reference.azimuths_rad),
-            "range_bins": hot_bins(maps.range_bins, reference.ranges_m, "range_m"),
-            "bearing_bins": hot_bins(maps.bearing_bins, np.degrees(reference.azimuths_rad), "bearing_deg"),
-            "levels": concentration(maps.levels, level_names()),
-            "bands_range": concentration(maps.bands_range, band_names(reference.n_ranges, n_bands)),
-            "bands_beam": concentration(maps.bands_beam, band_names(reference.n_beams, n_bands))}
+    return Where(cells=hot_cells(maps.cells, reference.ranges_m, reference.azimuths_rad),
+                 range_bins=hot_bins(maps.range_bins, reference.ranges_m),
+                 bearing_bins=hot_bins(maps.bearing_bins, np.degrees(reference.azimuths_rad)),
+                 levels=concentration(maps.levels, level_names()),
+                 bands_range=concentration(maps.bands_range, band_names(reference.n_ranges, n_bands)),
+                 bands_beam=concentration(maps.bands_beam, band_names(reference.n_beams, n_bands)))
 
 
 def _images(frames: Sequence[SonarImage], normalize: str) -> np.ndarray:

@@ -14,7 +14,7 @@ A classifier two-sample AUC over the same features is reported alongside as the 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +69,11 @@ def headline(gaps: Mapping[str, float]) -> float:
 
 def gap(a: Stats, b: Stats, scale: FeatureScale) -> float:
     return headline(family_gaps(a, b, scale))
+
+
+def gap_closed(before: float, after: float) -> float:
+    """The share of the gap `before` that is gone `after` (0 when there was none)."""
+    return float(1.0 - after / before) if before > 0 else 0.0
 
 
 def bootstrap_interval(a: Stats, b: Stats, scale: FeatureScale, n_boot: int = 200, level: float = 0.95,
@@ -185,3 +190,22 @@ def bootstrap_gain(before: Stats, after: Stats, target: Stats, scale: FeatureSca
     # centred on the estimate, as bootstrap_interval does
     lower = np.quantile(values, 1 - level) - np.mean(values) + estimate
     return float(estimate), float(lower)
+
+
+def best_frequency(candidates: Sequence[Stats | None], target: Stats, scale: FeatureScale, n_boot: int,
+                   seed: int = 0) -> np.ndarray:
+    """How often each candidate (the same sim frames under different corrections; None = invalid frames, never
+    best) has the smallest gap to `target` over `n_boot` resamples of the frames, sim rows resampled in pairs
+    across candidates and real rows on their own. Sums to 1 unless every candidate is None."""
+    valid = [i for i, stats in enumerate(candidates) if stats is not None]
+    wins = np.zeros(len(candidates))
+    if not valid:
+        return wins
+    na, nb = _count(candidates[valid[0]]), _count(target)
+    rng = np.random.default_rng(seed)
+    for _ in range(n_boot):
+        ia = rng.integers(0, na, na)
+        resampled_target = _rows(target, rng.integers(0, nb, nb))
+        gaps = [gap(_rows(candidates[i], ia), resampled_target, scale) for i in valid]
+        wins[valid[int(np.argmin(gaps))]] += 1
+    return wins / n_boot

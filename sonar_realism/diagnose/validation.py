@@ -35,7 +35,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from sonar_realism.diagnose.diagnosis import DiagnoseConfig, Diagnosis, diagnose
+from sonar_realism.diagnose.config import DiagnoseConfig
+from sonar_realism.diagnose.diagnosis import diagnose
+from sonar_realism.diagnose.result import Diagnosis
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, SOUND_SPEED_MPS, make_effect, seabed_elevation
@@ -370,29 +372,6 @@ def make_real(frames: Sequence[SonarImage], hidden: dict[str, dict[str, Any]], s
     return out
 
 
-@dataclass(frozen=True)
-class BlindResult:
-    hidden: dict[str, dict[str, Any]]
-    top1: str
-    selected: list[str]
-    gap_before: float
-    gap_after_selected: float
-    gap_closed: float
-    param_error: dict[str, float]
-    residual_cells: list[dict[str, Any]]
-    residual_families: list[dict[str, Any]]
-    seconds: float
-
-    @property
-    def catalogued(self) -> list[str]:
-        return [n for n in self.hidden if n in EFFECTS]
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"hidden": self.hidden, "top1": self.top1, "selected": self.selected, "gap_before": self.gap_before,
-                "gap_after_selected": self.gap_after_selected, "gap_closed": self.gap_closed,
-                "param_error": self.param_error, "seconds": self.seconds}
-
-
 def param_error(fitted: dict[str, Any], truth: dict[str, Any], name: str) -> float:
     """Mean over the hidden continuous parameters of |fitted - true| / width of the catalogue's PARAM_BOUNDS."""
     bounds = EFFECTS[name].PARAM_BOUNDS
@@ -401,22 +380,24 @@ def param_error(fitted: dict[str, Any], truth: dict[str, Any], name: str) -> flo
     return float(np.mean(errors)) if errors else math.nan
 
 
+@dataclass(frozen=True)
+class BlindResult:
+    """One blind case: what was hidden, the diagnosis, and each hidden catalogued effect's parameter error."""
+
+    hidden: dict[str, dict[str, Any]]
+    diagnosis: Diagnosis
+    param_error: dict[str, float]
+
+
 def blind_run(sim: Sequence[SonarImage], real_source: Sequence[SonarImage], hidden: dict[str, dict[str, Any]],
-              config: DiagnoseConfig, seed: int = 0) -> tuple[BlindResult, Diagnosis]:
+              config: DiagnoseConfig, seed: int = 0) -> BlindResult:
     """Diagnose `sim` against `real_source` + hidden effects, without telling the diagnosis what was hidden."""
     real = make_real(real_source, hidden, seed)
     result = diagnose(sim, real, config)
-    s = result.summary
-    fitted = {r["name"]: r["params"] for r in s["ranked_effects"]}
-    fitted.update(s["selected_params"])
+    fitted = result.fitted_params()
     errors = {name: param_error(fitted[name], params, name) for name, params in hidden.items()
               if name in EFFECTS and name in fitted}
-    blind = BlindResult(hidden=hidden, top1=s["ranked_effects"][0]["name"] if s["ranked_effects"] else "",
-                        selected=list(s["selected"]), gap_before=s["gap_before"],
-                        gap_after_selected=s["gap_after_selected"], gap_closed=s["gap_closed"], param_error=errors,
-                        residual_cells=s["residual"]["cells"], residual_families=s["residual"]["families"],
-                        seconds=s["seconds"])
-    return blind, result
+    return BlindResult(hidden, result, errors)
 
 
 def check_catalogue_defaults() -> None:

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from sonar_realism.diagnose.gap import FeatureScale, Stats, feature_gaps
+from sonar_realism.diagnose.result import GapMaps, HotBin, HotCell, Share
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, level_histograms, octave_band_edges, patch_moments
 
@@ -85,24 +86,6 @@ def level_features(images: np.ndarray, patch: int) -> np.ndarray:
     return np.column_stack([mass, contrast])
 
 
-@dataclass(frozen=True)
-class GapMaps:
-    """cells: [range_cells, bearing_cells] gap per cell; levels: [levels] gap per intensity level;
-    bands_range / bands_beam: [n_bands] gap per octave band (highest frequencies first); range_bins /
-    bearing_bins: gap of the mean brightness per bin of the range and bearing profiles (finer than the cells:
-    a narrow band at one range shows up in one bin instead of being averaged into a cell)."""
-
-    cells: np.ndarray
-    levels: np.ndarray
-    bands_range: np.ndarray
-    bands_beam: np.ndarray
-    range_bins: np.ndarray
-    bearing_bins: np.ndarray
-
-    def arrays(self) -> tuple[np.ndarray, ...]:
-        return (self.cells, self.levels, self.bands_range, self.bands_beam, self.range_bins, self.bearing_bins)
-
-
 def gap_maps(where_a: Stats, where_b: Stats, where_scale: FeatureScale, stats_a: Stats, stats_b: Stats,
              stats_scale: FeatureScale, config: WhereConfig = WhereConfig(),
              profile_bins: int = StatisticsConfig.profile_bins) -> GapMaps:
@@ -138,50 +121,47 @@ def band_names(length: int, n_bands: int) -> list[str]:
 
 
 def hot_cells(cells: np.ndarray, ranges_m: np.ndarray, azimuths_rad: np.ndarray, top: int = 3,
-              share: float = 0.5) -> list[dict[str, object]]:
+              share: float = 0.5) -> tuple[HotCell, ...]:
     """The cells holding the largest gap (up to `top`, or fewer if they already hold `share` of the positive total),
     as range and bearing intervals a person can read."""
     positive = np.clip(cells, 0.0, None)
     total = float(positive.sum())
     if total <= 0.0:
-        return []
+        return ()
     r_edges = np.linspace(0, len(ranges_m), cells.shape[0] + 1).round().astype(int)
     b_edges = np.linspace(0, len(azimuths_rad), cells.shape[1] + 1).round().astype(int)
-    out: list[dict[str, object]] = []
+    out: list[HotCell] = []
     covered = 0.0
     for flat in np.argsort(positive, axis=None)[::-1][:top]:
-        i, j = np.unravel_index(flat, cells.shape)
+        i, j = (int(k) for k in np.unravel_index(flat, cells.shape))
         covered += float(positive[i, j])
-        out.append({"range_cell": int(i), "bearing_cell": int(j),
-                    "range_m": [round(float(ranges_m[r_edges[i]]), 3), round(float(ranges_m[r_edges[i + 1] - 1]), 3)],
-                    "bearing_deg": [round(float(np.degrees(azimuths_rad[b_edges[j]])), 2),
-                                    round(float(np.degrees(azimuths_rad[b_edges[j + 1] - 1])), 2)],
-                    "gap": float(cells[i, j]), "share": float(positive[i, j] / total)})
+        out.append(HotCell(i, j, (round(float(ranges_m[r_edges[i]]), 3),
+                                  round(float(ranges_m[r_edges[i + 1] - 1]), 3)),
+                           (round(float(np.degrees(azimuths_rad[b_edges[j]])), 2),
+                            round(float(np.degrees(azimuths_rad[b_edges[j + 1] - 1])), 2)),
+                           float(cells[i, j]), float(positive[i, j] / total)))
         if covered / total >= share:
             break
-    return out
+    return tuple(out)
 
 
-def hot_bins(values: np.ndarray, axis: np.ndarray, unit: str, top: int = 3) -> list[dict[str, object]]:
+def hot_bins(values: np.ndarray, axis: np.ndarray, top: int = 3) -> tuple[HotBin, ...]:
     """The profile bins holding the largest gap (up to `top`), as intervals of `axis` (ranges in m or bearings in
     degrees) with their share of the positive total."""
     positive = np.clip(values, 0.0, None)
     total = float(positive.sum())
     if total <= 0.0:
-        return []
+        return ()
     edges = np.linspace(0, len(axis), len(values) + 1).round().astype(int)
-    out: list[dict[str, object]] = []
-    for k in np.argsort(positive)[::-1][:top]:
-        lo, hi = axis[edges[k]], axis[max(edges[k + 1] - 1, edges[k])]
-        out.append({"bin": int(k), unit: [round(float(lo), 3), round(float(hi), 3)], "gap": float(values[k]),
-                    "share": float(positive[k] / total)})
-    return out
+    return tuple(HotBin(int(k), (round(float(axis[edges[k]]), 3),
+                                 round(float(axis[max(edges[k + 1] - 1, edges[k])]), 3)),
+                        float(values[k]), float(positive[k] / total))
+                 for k in np.argsort(positive)[::-1][:top])
 
 
-def concentration(values: np.ndarray, names: list[str], top: int = 2) -> list[dict[str, object]]:
+def concentration(values: np.ndarray, names: list[str], top: int = 2) -> tuple[Share, ...]:
     """The entries of a 1-D gap profile (levels or bands) holding the most gap, with their share."""
     positive = np.clip(values, 0.0, None)
     total = float(positive.sum())
     order = np.argsort(positive)[::-1][:top]
-    return [{"name": names[k], "gap": float(values[k]), "share": float(positive[k] / total) if total > 0 else 0.0}
-            for k in order]
+    return tuple(Share(names[k], float(values[k]), float(positive[k] / total) if total > 0 else 0.0) for k in order)

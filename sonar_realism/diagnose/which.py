@@ -4,13 +4,14 @@ Fitting is a coordinate search over the effect's `PARAM_BOUNDS` (a coarse grid p
 around the best value), minimising the headline gap between the corrected fit-split sim frames and the fit-split
 real frames. The same random draws are used for every candidate parameter value (common random numbers), so the
 objective is smooth in the parameters and a handful of frames suffice. Ranking and selection are judged on the
-held-out split only.
+held-out split only, and every choice is repeated over bootstrap resamples of the held-out frames: how often each
+candidate wins is its stability, and a step whose runner-up wins often is reported as ambiguous.
 
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
 after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. Last,
-each selected effect must beat a plain gain difference (`GainProfile`): an effect whose fitted form does no more
-than a level and a range ramp would (a TVG ramp standing in for a beam-gain pattern the catalogue lacks) is not
-blamed, and its part of the gap stays residual.
+each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
+whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
+lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
 """
 
 from __future__ import annotations
@@ -19,58 +20,61 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
+import cv2
 import numpy as np
 
-from sonar_realism.diagnose.gap import FeatureScale, Stats, bootstrap_gain, gap
-from sonar_realism.errors import ConfigError, FrameError
+from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
+from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
+from sonar_realism.diagnose.parallel import parallel_map
+from sonar_realism.diagnose.result import Alternative, GainPatternFit, GainSpot, RankedEffect, StandIn, Step
+from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, make_effect
+from sonar_realism.sim.effects import EFFECTS, Effect, apply_effects, make_effect
+
+# A gain pattern's smooth part has this many degrees of freedom per axis; channels that stand out from it by more
+# than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB) keep their own gain: a stripe is one beam wide.
+GAIN_KNOTS = 16
+SPIKE_SIGMA = 4.0
+SPIKE_MIN_DB = 1.0
+GAIN_LIMIT_DB = 20.0
+SPOT_MIN_DB = 1.0
+MEASURED_WEIGHT = 0.3  # of the strongest row's or beam's weight (sqrt of mean signal): about 10% of its signal
+MAX_SPOTS = 8
 
 
 @dataclass(frozen=True)
-class SearchConfig:
-    """points: coarse grid values per parameter; rounds: 1 coarse round + (rounds - 1) finer rounds that try half a
-    grid step either side of the best value;
-    seed: the random draws shared by every candidate."""
+class GainPattern:
+    """A fixed gain (dB) per range row and per beam, applied to the sim frames before any effect: not a sensor
+    effect but the yardstick every selected effect must beat, and the form un-catalogued gain errors are reported
+    in. An overall level and a linear ramp over range (searched on the statistics, as an effect's parameters are),
+    plus a shape per range and per beam (estimated from mean images: see fit_gain_pattern)."""
 
-    points: int = 5
-    rounds: int = 2
-    seed: int = 0
-
-    def validate(self) -> None:
-        if self.points < 2 or self.rounds < 1:
-            raise ConfigError("SearchConfig: points >= 2 and rounds >= 1")
-
-
-@dataclass(frozen=True)
-class GainProfile(Effect):
-    """A plain gain difference: an overall level and a linear ramp in dB over range. Not a sensor effect: the
-    yardstick every selected effect must beat, applied to the sim frames before any effect."""
-
-    name: ClassVar[str] = "gain_profile"
     level_db: float = 0.0
     ramp_db: float = 0.0
+    range_shape_db: np.ndarray | None = None
+    beam_shape_db: np.ndarray | None = None
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {"level_db": (-12.0, 12.0), "ramp_db": (-12.0, 12.0)}
-    VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {"level_db": (-60.0, 60.0), "ramp_db": (-60.0, 60.0)}
     # A gain is one smooth dimension each: a finer search than the effects get is cheap and keeps the yardstick
     # from losing to an effect only because its grid missed a fraction of a dB.
     SEARCH_ROUNDS: ClassVar[int] = 6
 
-    def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
-        r = frame.ranges_m
-        gain_db = self.level_db + self.ramp_db * (r - r[0]) / max(r[-1] - r[0], 1e-9)
-        return intensity * (10 ** (gain_db / 20)).astype(np.float32)[:, None]
+    def params(self) -> dict[str, float]:
+        return {"level_db": self.level_db, "ramp_db": self.ramp_db}
 
+    def profiles(self, n_ranges: int, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
+        """Gain in dB per range row and per beam."""
+        range_db = self.level_db + self.ramp_db * np.linspace(0.0, 1.0, n_ranges)
+        if self.range_shape_db is not None:
+            range_db = range_db + self.range_shape_db
+        beam_db = self.beam_shape_db if self.beam_shape_db is not None else np.zeros(n_beams)
+        return range_db, beam_db
 
-def candidate_class(name: str) -> type[Effect]:
-    return GainProfile if name == GainProfile.name else EFFECTS[name]
-
-
-def default_candidate(name: str) -> Effect:
-    return GainProfile() if name == GainProfile.name else make_effect(name)
+    def factor(self, n_ranges: int, n_beams: int) -> np.ndarray:
+        range_db, beam_db = self.profiles(n_ranges, n_beams)
+        return (10 ** ((range_db[:, None] + beam_db[None, :]) / 20)).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -81,16 +85,16 @@ class Fit:
 
 
 def corrected_images(frames: Sequence[SonarImage], effects: Sequence[Effect], seed: int,
-                     normalize: str = "none") -> np.ndarray:
-    """Apply `effects` to every frame (one generator seeded with `seed`) and stack as float32 [n, R, B] in [0, 1]."""
+                     normalize: str = "none", gain: GainPattern | None = None) -> np.ndarray:
+    """Apply `gain` then `effects` to every frame (one generator seeded with `seed`) and stack as float32
+    [n, R, B] in [0, 1]."""
     rng = np.random.default_rng(seed)
-    gains = [e for e in effects if isinstance(e, GainProfile)]
-    sensor_effects = [e for e in effects if not isinstance(e, GainProfile)]
+    factor = gain.factor(frames[0].n_ranges, frames[0].n_beams) if gain is not None and frames else None
     out = []
     for frame in frames:
-        for gain in gains:
-            frame = frame.replace(intensity=gain.apply(frame.normalized(), frame, rng), intensity_scale=1.0)
-        corrected = apply_effects(frame, sensor_effects, rng) if sensor_effects else frame
+        if factor is not None:
+            frame = frame.replace(intensity=frame.normalized() * factor, intensity_scale=1.0)
+        corrected = apply_effects(frame, effects, rng) if effects else frame
         out.append(normalize_image(corrected.normalized(), normalize))
     return np.stack(out)
 
@@ -104,41 +108,59 @@ def normalize_image(image: np.ndarray, how: str) -> np.ndarray:
 
 
 def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: FeatureScale,
-               base: Sequence[Effect] = (), start: Effect | None = None, search: SearchConfig = SearchConfig(),
+               base: Sequence[Effect] = (), start: Effect | None = None, search: SearchConfig | None = None,
                statistics: StatisticsConfig | None = None, normalize: str = "none",
                alternatives: Sequence[Effect] = ()) -> Fit:
     """Parameters of effect `name` that, applied to `frames` after/with the `base` effects, bring their
     statistics closest to `target`. The search starts from `start` (default: the catalogue's values) or from
     whichever of `alternatives` fits better there."""
     statistics = statistics or StatisticsConfig()
-    bounds = dict(candidate_class(name).PARAM_BOUNDS)
+    search = search or SearchConfig()
 
-    def clipped(effect: Effect) -> Effect:
-        return dataclasses.replace(effect, **{k: float(np.clip(getattr(effect, k), *bounds[k])) for k in bounds})
+    def objective(effect: Effect) -> float:
+        return gap(frame_statistics(corrected_images(frames, [*base, effect], search.seed, normalize), statistics),
+                   target, scale)
 
-    current = clipped(start if start is not None else default_candidate(name))
+    best, score, evaluations = coordinate_search(start if start is not None else make_effect(name),
+                                                 EFFECTS[name].PARAM_BOUNDS, objective, search, alternatives)
+    return Fit(best, score, evaluations)
+
+
+T = TypeVar("T")
+
+
+def coordinate_search(start: T, bounds: dict[str, tuple[float, float]], objective: Callable[[T], float],
+                      search: SearchConfig, alternatives: Sequence[T] = ()) -> tuple[T, float, int]:
+    """Minimise `objective` over the `bounds` fields of the frozen dataclass `start`: a coarse grid per parameter
+    (`search.points`, log-spaced for parameters spanning decades), then finer rounds of half a step either side
+    of the best; from `start` or whichever of `alternatives` scores better. Returns the best, its score and the
+    number of evaluations. Values for which the objective raises FrameError (invalid frames) are no candidates.
+    Only the searched fields key the cache: the others must be the same in `start` and `alternatives`."""
+
+    def clipped(value: T) -> T:
+        return dataclasses.replace(value, **{k: float(np.clip(getattr(value, k), *bounds[k])) for k in bounds})
 
     evaluations = 0
     cache: dict[tuple, float] = {}
 
-    def objective(effect: Effect) -> float:
+    def score(value: T) -> float:
         nonlocal evaluations
-        key = tuple((k, float(f"{v:.9g}")) for k, v in sorted(effect.params().items()))
+        key = tuple(float(f"{getattr(value, k):.9g}") for k in bounds)
         if key not in cache:
             try:
-                images = corrected_images(frames, [*base, effect], search.seed, normalize)
-                cache[key] = gap(frame_statistics(images, statistics), target, scale)
-            except FrameError:  # parameter values for which the effect yields an invalid frame are no candidates
+                cache[key] = objective(value)
+            except FrameError:
                 cache[key] = math.inf
             evaluations += 1
         return cache[key]
 
-    best = objective(current)
+    current = clipped(start)
+    best = score(current)
     for other in alternatives:
         other = clipped(other)
-        score = objective(other)
-        if score < best:
-            best, current = score, other
+        other_score = score(other)
+        if other_score < best:
+            best, current = other_score, other
     for round_index in range(search.rounds):
         for param, (low, high) in bounds.items():
             log_scale = low > 0 and high / low >= 20  # parameters spanning decades are searched on a log grid
@@ -152,66 +174,190 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
                 grid = np.array([max(lo, centre - step), centre, min(hi, centre + step)])
             for candidate in grid:
                 trial = dataclasses.replace(current, **{param: float(np.clip(from_grid(candidate), low, high))})
-                score = objective(trial)
-                if score < best:
-                    best, current = score, trial
-    return Fit(current, best, evaluations)
+                trial_score = score(trial)
+                if trial_score < best:
+                    best, current = trial_score, trial
+    return current, best, evaluations
+
+
+def fit_gain_pattern(problem: SelectionProblem, base: Sequence[Effect], config: DiagnoseConfig) -> GainPattern:
+    """The fixed gain pattern that, applied before `base`, brings the fit frames closest to the real ones.
+
+    The level and the ramp over range are searched on the statistics, as an effect's parameters are. The shape
+    per range and per beam is then estimated directly from mean images: ratios of row sums (real over corrected
+    sim) give the range shape, then ratios of column sums the beam shape, each a smooth curve (GAIN_KNOTS degrees
+    of freedom) plus isolated channels that stand out from it. Sim and real frames show different scenes, whose
+    brightness also differs by range and bearing; only a *fixed* pattern is wanted, so the shape is estimated on
+    two halves of the frames (sim and real) separately and only what both agree on (same sign, the smaller size)
+    is kept: a scene's bright rock is in one half, a channel's gain error in both. Last, a parsimony test: the
+    shape is kept only if it lowers the fit-split gap below that of the level and ramp alone."""
+    search = dataclasses.replace(config.search, rounds=max(config.search.rounds, GainPattern.SEARCH_ROUNDS))
+    frames = problem.fit_frames
+
+    def fit_gap(pattern: GainPattern) -> float:
+        images = corrected_images(frames, base, search.seed, config.normalize, gain=pattern)
+        return gap(frame_statistics(images, config.statistics), problem.fit_target, problem.scale)
+
+    line, line_gap, _ = coordinate_search(GainPattern(), GainPattern.PARAM_BOUNDS, fit_gap, search)
+    images = corrected_images(frames, base, search.seed, config.normalize, gain=line)
+    sim_halves = (images[0::2].mean(axis=0), images[1::2].mean(axis=0) if len(images) > 1 else images[0])
+    rows = [(r.sum(axis=1), s.sum(axis=1)) for r, s in zip(problem.fit_real_halves, sim_halves, strict=True)]
+    range_shape = _fixed_shape([_ratio_db(*pair) for pair in rows], _weight(rows), detrend=True)
+    shift = (10 ** (range_shape / 20))[:, None]
+    columns = [(r.sum(axis=0), (s * shift).sum(axis=0))
+               for r, s in zip(problem.fit_real_halves, sim_halves, strict=True)]
+    beam_shape = _fixed_shape([_ratio_db(*pair) for pair in columns], _weight(columns), detrend=False)
+    shaped = dataclasses.replace(line, range_shape_db=range_shape, beam_shape_db=beam_shape)
+    try:
+        return shaped if fit_gap(shaped) < line_gap else line
+    except FrameError:
+        return line
+
+
+def _ratio_db(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
+    floor = 1e-6 * max(float(real.max()), float(sim.max()), 1e-12)
+    ratio = np.where((real > floor) & (sim > floor), np.maximum(real, floor) / np.maximum(sim, floor), 1.0)
+    return np.clip(20 * np.log10(ratio), -GAIN_LIMIT_DB, GAIN_LIMIT_DB)
+
+
+def _weight(sums: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Weights of a profile's samples: rows or columns with more signal say more about the gain (the empty water
+    column says nothing)."""
+    total = np.sum([real + sim for real, sim in sums], axis=0)
+    return np.sqrt(np.maximum(total, 0.0) / max(float(total.max()), 1e-12))
+
+
+def _fixed_shape(halves: Sequence[np.ndarray], weight: np.ndarray, detrend: bool) -> np.ndarray:
+    """A gain shape (dB) from its estimates on two halves of the frames: the smooth shape and isolated channels on
+    which both halves agree, about the weighted median (and, with `detrend`, without the weighted linear trend,
+    which the searched level and ramp already carry)."""
+    x = np.linspace(-1.0, 1.0, len(halves[0]))
+    centred = []
+    for half in halves:
+        trend = (np.polyval(np.polyfit(x, half, 1, w=weight + 1e-6), x) if detrend
+                 else np.full_like(half, np.median(half[weight > 0.1 * weight.max()])))
+        centred.append(half - trend)
+    smooth = [_running_smooth(c) for c in centred]
+    channels = [_isolated(c - sm) for c, sm in zip(centred, smooth, strict=True)]
+    # a row or beam with almost no signal in either set (the empty water column) measures no gain of its own
+    measured = weight >= MEASURED_WEIGHT * weight.max()
+    return _agree(*smooth) + _agree(*channels) * measured
+
+
+def _agree(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.where(a * b > 0, np.sign(a) * np.minimum(np.abs(a), np.abs(b)), 0.0)
+
+
+def _width(n: int) -> int:
+    return max(3, (n // GAIN_KNOTS) | 1)
+
+
+def _running_smooth(profile: np.ndarray) -> np.ndarray:
+    """A running median then a box over len / GAIN_KNOTS samples: the shape without isolated channels."""
+    width = _width(len(profile))
+    padded = np.pad(profile, width // 2, mode="edge")
+    median = np.array([np.median(padded[i:i + width]) for i in range(len(profile))], dtype=np.float32)
+    return cv2.blur(median.reshape(-1, 1), (1, width), borderType=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+
+
+def _isolated(deviation: np.ndarray) -> np.ndarray:
+    """The samples that stand out by more than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB); 0 elsewhere."""
+    spread = 1.4826 * float(np.median(np.abs(deviation - np.median(deviation))))
+    return np.where(np.abs(deviation) > max(SPIKE_SIGMA * spread, SPIKE_MIN_DB), deviation, 0.0)
+
+
+def describe_pattern(pattern: GainPattern, ranges_m: np.ndarray, bearings_deg: np.ndarray, gap_with: float,
+                     share: float) -> GainPatternFit:
+    range_db, beam_db = pattern.profiles(len(ranges_m), len(bearings_deg))
+    return GainPatternFit(level_db=pattern.level_db, ramp_db=pattern.ramp_db,
+                          range_db=tuple(float(v) for v in range_db), beam_db=tuple(float(v) for v in beam_db),
+                          beams=_spots(beam_db, bearings_deg), ranges=_spots(range_db - np.median(range_db), ranges_m),
+                          gap=gap_with, share_of_gap=share)
+
+
+def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
+    """Where a profile stands out: isolated channels first (strongest first), then the smooth part's extremes."""
+    centred = profile_db - np.median(profile_db)
+    channels = centred - _running_smooth(centred)
+    isolated = [int(i) for i in np.argsort(-np.abs(channels)) if abs(channels[i]) > SPIKE_MIN_DB][:MAX_SPOTS]
+    width = _width(len(centred))
+    extremes = [int(i) for i in (np.argmax(centred), np.argmin(centred))
+                if abs(centred[i]) >= SPOT_MIN_DB and all(abs(int(i) - j) > width for j in isolated)]
+    return tuple(GainSpot(i, float(axis[i]), float(centred[i])) for i in [*isolated, *dict.fromkeys(extremes)])
 
 
 @dataclass(frozen=True)
-class RankedEffect:
-    name: str
-    params: dict
-    gap_after: float
-    fit_gap: float
+class SelectionProblem:
+    """The data a selection works on: the sim frames and real statistics of the fit split (`fit_real_halves`:
+    the mean images of two halves of the real fit frames, for the gain pattern), the held-out judge
+    `holdout(effects, gain)` -> (gap, statistics or None), the held-out real statistics `target` and the raw sim's
+    `stats_before` (None: no significance test, no bootstrap frequencies), and the gap before. `ranges_m` /
+    `bearings_deg` place a gain pattern."""
 
-
-@dataclass(frozen=True)
-class Step:
-    """One step of the selection: `action` is "start" (nothing applied), "add", "refit" (pruning refitted the
-    whole set, which fitted better), "remove" (pruned) or "gain_stand_in" (removed: a plain gain difference does
-    its job); `gap` the held-out gap after it."""
-
-    action: str
-    effect: str
-    gap: float
+    fit_frames: Sequence[SonarImage]
+    fit_target: Stats
+    fit_real_halves: tuple[np.ndarray, np.ndarray]
+    scale: FeatureScale
+    holdout: Callable[[Sequence[Effect], GainPattern | None], tuple[float, Stats | None]]
+    target: Stats | None
+    stats_before: Stats | None
+    gap_before: float
+    ranges_m: np.ndarray
+    bearings_deg: np.ndarray
 
 
 @dataclass(frozen=True)
 class Selection:
     """`effects`: the selected effects as finally fitted; `path`: every step taken; `stopped`: why the forward
-    selection ended; `stand_ins`: effects dropped because a plain gain difference explained as much."""
+    selection ended; `stand_ins`: effects dropped because a gain pattern explained as much; `gap`: the held-out
+    gap after `effects`; `stats`: their held-out statistics."""
 
     effects: list[Effect]
     path: list[Step]
     stopped: str
-    stand_ins: list[dict] = dataclasses.field(default_factory=list)
+    stand_ins: list[StandIn]
+    gap: float
+    stats: Stats | None
 
 
-def rank_effects(names: Sequence[str], fit_frames: Sequence[SonarImage], fit_target: Stats,
-                 holdout_gap: Callable[[Sequence[Effect]], float], scale: FeatureScale, search: SearchConfig,
-                 statistics: StatisticsConfig, normalize: str = "none",
-                 progress: Callable[[str], None] | None = None) -> list[tuple[RankedEffect, Effect]]:
-    """Every effect fitted alone, then judged on the held-out split; best (smallest gap) first."""
-    out = []
-    for name in names:
-        fit = fit_effect(name, fit_frames, fit_target, scale, search=search, statistics=statistics,
-                         normalize=normalize)
-        after = holdout_gap([fit.effect])
+@dataclass(frozen=True)
+class Solo:
+    """An effect fitted alone and its held-out statistics (None: its frames were invalid)."""
+
+    ranked: RankedEffect
+    effect: Effect
+    stats: Stats | None
+
+
+def rank_effects(names: Sequence[str], problem: SelectionProblem, config: DiagnoseConfig,
+                 progress: Callable[[str], None] | None = None) -> list[Solo]:
+    """Every effect fitted alone, then judged on the held-out split; best (smallest gap) first, each with how
+    often it ranks first over bootstrap resamples of the held-out frames."""
+    def solo(name: str) -> tuple[str, Fit, float, Stats | None]:
+        fit = fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, search=config.search,
+                         statistics=config.statistics, normalize=config.normalize)
+        return (name, fit, *problem.holdout([fit.effect], None))
+
+    fitted = parallel_map(solo, names, config.workers)
+    for name, fit, after, _ in fitted:
         if progress:
             progress(f"{name}: held-out gap {after:.4g} ({fit.evaluations} fits)")
-        out.append((RankedEffect(name, fit.effect.params(), after, fit.fit_gap), fit.effect))
-    return sorted(out, key=lambda pair: pair[0].gap_after)
+    frequency = _frequencies([stats for *_, stats in fitted], problem, config, seed=config.seed + 500)
+    solos = [Solo(RankedEffect(name, fit.effect.params(), after, fit.fit_gap,
+                               gap_closed(problem.gap_before, after), float(freq)), fit.effect, stats)
+             for (name, fit, after, stats), freq in zip(fitted, frequency, strict=True)]
+    return sorted(solos, key=lambda solo: solo.ranked.gap_after)
 
 
-def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: float, fit_frames: Sequence[SonarImage],
-                  fit_target: Stats, holdout: Callable[[Sequence[Effect]], tuple[float, Stats | None]],
-                  scale: FeatureScale, search: SearchConfig, statistics: StatisticsConfig, max_effects: int,
-                  min_gain: float, candidates_per_step: int, normalize: str = "none",
-                  progress: Callable[[str], None] | None = None, target: Stats | None = None,
-                  stats_before: Stats | None = None, significance: float = 0.95, bootstrap: int = 200,
-                  backfit: bool = True, seed: int = 0, prune: bool = True,
-                  gain_check: bool = True) -> Selection:
+def _frequencies(stats: Sequence[Stats | None], problem: SelectionProblem, config: DiagnoseConfig,
+                 seed: int) -> np.ndarray:
+    if problem.target is None or not stats:
+        return np.full(len(stats), math.nan)
+    return best_frequency(stats, problem.target, problem.scale, config.bootstrap, seed=seed)
+
+
+def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: DiagnoseConfig,
+                  progress: Callable[[str], None] | None = None) -> Selection:
     """Forward selection on the held-out split, then backward pruning, then the gain check.
 
     Step 1 takes the best effect of the solo ranking. Every later step tries *every* remaining effect: with
@@ -221,128 +367,150 @@ def greedy_select(ranked: Sequence[tuple[RankedEffect, Effect]], gap_before: flo
     `candidates_per_step` sets that fit best are judged on held-out frames. An effect that only helps together
     with another (speckle under a gamma curve) is useless alone and ranks low in the solo ranking, so a shortlist
     taken from that ranking would never reconsider it. The shortlisted set lowering the held-out gap most is kept
-    if the gain is at least `min_gain` x gap_before and, with `target` (the held-out real statistics) and
-    `stats_before` (the held-out sim statistics that gave gap_before) given, significant: the one-sided
-    `significance` lower bound of a paired bootstrap of the gain is above 0, so an effect that merely nudges the
-    statistics within their sampling noise is left out and the gap stays residual.
+    if the gain is at least `min_gain` x gap_before and significant: the one-sided `significance` lower bound of
+    a paired bootstrap of the gain is above 0, so an effect that merely nudges the statistics within their
+    sampling noise is left out and the gap stays residual. Each "add" step records its candidates with how often
+    each won over bootstrap resamples of the held-out frames (the first step: the whole solo ranking).
 
     Pruning then takes the effect whose removal costs least and compares the set without it against the whole
     set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
 
-    The gain check (`gain_check`) replaces each selected effect in turn by a `GainProfile` fitted on top of the
-    others: if that does at least as well on held-out frames, the effect is dropped (a "stand-in"). Not a
-    significance test: the burden is on the plain gain, so a true effect that the statistics tell from a gain
-    only weakly (a multipath ghost on a seabed-filled scene) is kept.
+    The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
+    others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
+    significantly better (the paired bootstrap's lower bound above 0), the effect is dropped (a "stand-in"). The
+    burden is on the gain pattern, so a true effect that the statistics tell from a gain only weakly (a multipath
+    ghost on a seabed-filled scene) is kept.
     """
+    c = config
     chosen: list[Effect] = []
+    gap_before = problem.gap_before
     path = [Step("start", "none", gap_before)]
-    current, current_stats = gap_before, stats_before
+    current, current_stats = gap_before, problem.stats_before
     remaining = list(ranked)
-    one_round = dataclasses.replace(search, rounds=1)
-    stopped = f"reached max_effects={max_effects}"
+    one_round = dataclasses.replace(c.search, rounds=1)
+    stopped = f"reached max_effects={c.max_effects}"
 
     def refit(name: str, base: Sequence[Effect], start: Effect) -> Fit:
         # the catalogue's default is the other start: a fit made while another effect was missing may sit in a
         # compromise (a gamma curve bent to mimic speckle) from which one coordinate round does not come back
-        return fit_effect(name, fit_frames, fit_target, scale, base=base, start=start, search=one_round,
-                          statistics=statistics, normalize=normalize, alternatives=[default_candidate(name)])
+        return fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, base=base, start=start,
+                          search=one_round, statistics=c.statistics, normalize=c.normalize,
+                          alternatives=[make_effect(name)])
 
     def refit_each(effects: Sequence[Effect], around: Sequence[Effect] = ()) -> list[Effect]:
         effects = list(effects)
-        if backfit:
+        if c.backfit:
             for i, previous in enumerate(effects):
                 effects[i] = refit(previous.name, [*effects[:i], *effects[i + 1:], *around], previous).effect
         return effects
 
+    def holdout(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[float, Stats | None]:
+        return problem.holdout(effects, gain)
+
     def lower_bound(worse: Stats | None, better: Stats | None, draw: int) -> tuple[float, float]:
         """The paired-bootstrap gain of `better` over `worse` and its one-sided lower bound (+inf: no test)."""
-        if target is None or worse is None or better is None or significance <= 0:
+        if problem.target is None or worse is None or better is None or c.significance <= 0:
             return math.nan, math.inf
-        return bootstrap_gain(worse, better, target, scale, bootstrap, significance, seed=seed + draw)
+        return bootstrap_gain(worse, better, problem.target, problem.scale, c.bootstrap, c.significance,
+                              seed=c.seed + draw)
 
-    while remaining and len(chosen) < max_effects:
-        if current <= min_gain * gap_before:
-            stopped = f"the gap left is below {min_gain:.0%} of the gap before (nothing left to explain)"
+    while remaining and len(chosen) < c.max_effects:
+        if current <= c.min_gain * gap_before:
+            stopped = f"the gap left is below {c.min_gain:.0%} of the gap before (nothing left to explain)"
             break
         if chosen:
-            screened = []
-            for info, solo in remaining:
-                base = refit_each(chosen, around=[solo])
-                fit = refit(info.name, base, solo)
-                screened.append((fit.fit_gap, base, fit.effect, info))
-            shortlist = sorted(screened, key=lambda t: t[0])[:candidates_per_step]
+            def screen(solo: Solo, chosen: list[Effect] = chosen) -> tuple[float, list[Effect], Effect, Solo]:
+                base = refit_each(chosen, around=[solo.effect])
+                fit = refit(solo.ranked.name, base, solo.effect)
+                return fit.fit_gap, base, fit.effect, solo
+
+            screened = parallel_map(screen, remaining, c.workers)
+            shortlist = sorted(screened, key=lambda t: t[0])[:c.candidates_per_step]
+            judged = parallel_map(lambda t: holdout([*t[1], t[2]]), shortlist, c.workers)
+            trials = [(gap_value, base, effect, solo, stats)
+                      for (_, base, effect, solo), (gap_value, stats) in zip(shortlist, judged, strict=True)]
+            frequency = _frequencies([t[4] for t in trials], problem, c, seed=c.seed + 600 + len(chosen))
+            alternatives = tuple(Alternative(t[3].ranked.name, t[0], float(f)) for t, f in
+                                 zip(trials, frequency, strict=True))
         else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
-            shortlist = [(remaining[0][0].fit_gap, list(chosen), remaining[0][1], remaining[0][0])]
-        trials = []
-        for _, base, effect, info in shortlist:
-            gap_value, stats = holdout([*base, effect])
-            trials.append((gap_value, base, effect, info, stats))
-        best_gap, best_base, best_effect, best_info, best_stats = min(trials, key=lambda t: t[0])
-        if current - best_gap < min_gain * max(gap_before, 1e-12):
-            stopped = f"no remaining effect lowers the held-out gap by {min_gain:.0%} of the gap before"
+            top = remaining[0]
+            trials = [(top.ranked.gap_after, [], top.effect, top, top.stats)]
+            alternatives = tuple(Alternative(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency)
+                                 for s in remaining)
+        best_gap, best_base, best_effect, best_solo, best_stats = min(trials, key=lambda t: t[0])
+        best_name = best_solo.ranked.name
+        if current - best_gap < c.min_gain * max(gap_before, 1e-12):
+            stopped = f"no remaining effect lowers the held-out gap by {c.min_gain:.0%} of the gap before"
             break
         gain, lower = lower_bound(current_stats, best_stats, len(chosen))
         if lower <= 0.0:
-            stopped = (f"the best remaining effect ({best_info.name}) lowers the held-out gap by {gain:.3g}, "
-                       f"not significantly (one-sided {significance:.0%} lower bound {lower:.3g} <= 0)")
+            stopped = (f"the best remaining effect ({best_name}) lowers the held-out gap by {gain:.3g}, "
+                       f"not significantly (one-sided {c.significance:.0%} lower bound {lower:.3g} <= 0)")
             break
         chosen = [*best_base, best_effect]
-        path.append(Step("add", best_info.name, best_gap))
+        path.append(Step("add", best_name, best_gap, alternatives))
         current, current_stats = best_gap, best_stats
-        remaining = [pair for pair in remaining if pair[0].name != best_info.name]
+        remaining = [solo for solo in remaining if solo.ranked.name != best_name]
         if progress:
-            progress(f"selected {best_info.name}: held-out gap {best_gap:.4g} (gain {gain:.3g}, one-sided "
-                     f"{significance:.0%} lower bound {lower:.3g})")
+            progress(f"selected {best_name}: held-out gap {best_gap:.4g} (gain {gain:.3g}, one-sided "
+                     f"{c.significance:.0%} lower bound {lower:.3g})")
     else:
         if not remaining:
             stopped = "every catalogued effect selected"
 
-    while prune and len(chosen) >= 2:
+    while c.prune and len(chosen) >= 2:
         # the candidate for removal: the effect whose absence hurts least as the others stand
-        dropped = min(chosen, key=lambda e: holdout([other for other in chosen if other is not e])[0])
+        without = parallel_map(lambda e, chosen=chosen: holdout([o for o in chosen if o is not e])[0], chosen,
+                               c.workers)
+        dropped = chosen[int(np.argmin(without))]
         # judged with both sides refitted alike: the others were fitted while `dropped` was present, and a refit
         # of the rest alone would credit the removal with what is only a better fit
-        full = refit_each(chosen)
-        gap_full, stats_full = holdout(full)
+        def refit_side(effects: list[Effect]) -> tuple[list[Effect], float, Stats | None]:
+            effects = refit_each(effects)
+            return (effects, *holdout(effects))
+
+        sides = [chosen, [e for e in chosen if e.name != dropped.name]]
+        (full, gap_full, stats_full), (rest, gap_without, stats_without) = parallel_map(refit_side, sides, c.workers)
         if gap_full < current:
             chosen, current, current_stats = full, gap_full, stats_full
             path.append(Step("refit", "all", gap_full))
-        rest = refit_each([e for e in chosen if e.name != dropped.name])
-        gap_without, stats_without = holdout(rest)
         cost = gap_without - current
         significant = lower_bound(stats_without, current_stats, 100 + len(chosen))[1] > 0
-        if cost >= min_gain * max(gap_before, 1e-12) and significant:
+        if cost >= c.min_gain * max(gap_before, 1e-12) and significant:
             break
         chosen, current, current_stats = rest, gap_without, stats_without
         path.append(Step("remove", dropped.name, gap_without))
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
 
+    def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float, Stats | None]:
+        rest = [e for e in chosen if e is not effect]
+        pattern = fit_gain_pattern(problem, rest, c)
+        return (pattern, *holdout(rest, pattern))
+
     stand_ins = []
-    gain_search = dataclasses.replace(search, rounds=max(search.rounds, GainProfile.SEARCH_ROUNDS))
-    for name in [e.name for e in chosen] if gain_check else []:
+    # every selected effect's stand-in pattern at once; one is refitted only if an earlier one was dropped
+    patterns = dict(zip([e.name for e in chosen], parallel_map(pattern_in_place_of, chosen, c.workers),
+                        strict=True)) if c.gain_check else {}
+    changed = False
+    for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
-        rest = [e for e in chosen if e.name != name]
-        gain = fit_effect(GainProfile.name, fit_frames, fit_target, scale, base=rest, search=gain_search,
-                          statistics=statistics, normalize=normalize).effect
-        gap_gain, _ = holdout([*rest, gain])
+        pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
         if current < gap_gain:
             continue
-        rest = refit_each(rest)
+        # parsimony: a level and a ramp (two numbers, as an effect has) need only do as well; a pattern with a
+        # shape (dozens of numbers) must do better beyond the noise, or a ghost that brightens the far range
+        # (multipath) is lost to a range shape that mimics its mean
+        if pattern.range_shape_db is not None and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0:
+            continue
+        rest = refit_each([e for e in chosen if e is not effect])
         gap_rest, stats_rest = holdout(rest)
-        stand_ins.append({"effect": effect.name, "params": effect.params(), "gain_profile": gain.params(),
-                          "gap_with_effect": current, "gap_with_gain_profile": gap_gain})
-        chosen, current, current_stats = rest, gap_rest, stats_rest
+        fit = describe_pattern(pattern, problem.ranges_m, problem.bearings_deg, gap_gain,
+                               gap_closed(gap_before, gap_gain) - gap_closed(gap_before, gap_rest))
+        stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain))
+        chosen, current, current_stats, changed = rest, gap_rest, stats_rest, True
         path.append(Step("gain_stand_in", effect.name, gap_rest))
         if progress:
-            progress(f"{effect.name} does no more than a gain profile ({gain.params()}): not blamed; held-out gap "
-                     f"{gap_rest:.4g}")
-    return Selection(chosen, path, stopped, stand_ins)
-
-
-def check_effect_names(names: Sequence[str]) -> list[str]:
-    unknown = [n for n in names if n not in EFFECTS]
-    if unknown:
-        raise ConfigError(f"unknown effect(s) {', '.join(unknown)}; catalogue: {', '.join(PIPELINE_ORDER)}")
-    return list(names) if names else list(PIPELINE_ORDER)
-
+            progress(f"{effect.name} does no more than a gain pattern ({fit.describe()}): not blamed; held-out "
+                     f"gap {gap_rest:.4g}")
+    return Selection(chosen, path, stopped, stand_ins, current, current_stats)

@@ -1,0 +1,315 @@
+"""The diagnosis as typed data: what `diagnose()` returns, what diagnosis.json holds (`Diagnosis.to_json()`), and
+what `load_diagnosis()` reads back. Report, validation and bench read these fields, never string keys.
+
+The DESIGN contract keys of diagnosis.json are fields here: `gap_before`, `ranked_effects` (`name`, `params`,
+`gap_after`), `selected` (effect names), `gap_after_selected`, `residual`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from sonar_realism.config import from_dict
+from sonar_realism.errors import ConfigError
+
+Verdict = Literal["selected", "ambiguous", "residual_only", "not_enough_frames"]
+
+
+@dataclass(frozen=True)
+class Share:
+    """One entry of a 1-D gap profile (a statistic family, an intensity level, a frequency band) and its share."""
+
+    name: str
+    gap: float
+    share: float
+
+
+@dataclass(frozen=True)
+class HotCell:
+    range_cell: int
+    bearing_cell: int
+    range_m: tuple[float, float]
+    bearing_deg: tuple[float, float]
+    gap: float
+    share: float
+
+
+@dataclass(frozen=True)
+class HotBin:
+    """A profile bin; `span` is in metres for range bins, in degrees for bearing bins."""
+
+    bin: int
+    span: tuple[float, float]
+    gap: float
+    share: float
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a gap lies: the hottest cells, range and bearing bins, intensity levels and frequency bands."""
+
+    cells: tuple[HotCell, ...]
+    range_bins: tuple[HotBin, ...]
+    bearing_bins: tuple[HotBin, ...]
+    levels: tuple[Share, ...]
+    bands_range: tuple[Share, ...]
+    bands_beam: tuple[Share, ...]
+
+
+@dataclass(frozen=True)
+class GapMaps:
+    """cells: [range_cells, bearing_cells] gap per cell; levels: [levels] gap per intensity level;
+    bands_range / bands_beam: [n_bands] gap per octave band (highest frequencies first); range_bins /
+    bearing_bins: gap of the mean brightness per bin of the range and bearing profiles (finer than the cells:
+    a narrow band at one range shows up in one bin instead of being averaged into a cell)."""
+
+    cells: np.ndarray
+    levels: np.ndarray
+    bands_range: np.ndarray
+    bands_beam: np.ndarray
+    range_bins: np.ndarray
+    bearing_bins: np.ndarray
+
+    def __post_init__(self) -> None:  # read back from JSON as nested lists
+        for f in dataclasses.fields(self):
+            object.__setattr__(self, f.name, np.asarray(getattr(self, f.name), dtype=np.float64))
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
+
+
+@dataclass(frozen=True)
+class RankedEffect:
+    """An effect fitted alone: its parameters, its gap on the fit split and on held-out frames, and how often it
+    ranked first over bootstrap resamples of the held-out frames (`top_frequency`)."""
+
+    name: str
+    params: dict[str, Any]
+    gap_after: float
+    fit_gap: float
+    gap_closed: float
+    top_frequency: float
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A candidate set judged at one selection step: `effect` added on top of the chosen ones, the held-out gap
+    it gives, and how often it was the best of the step's candidates over bootstrap resamples."""
+
+    effect: str
+    gap: float
+    frequency: float
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of the selection: `action` is "start" (nothing applied), "add", "refit" (pruning refitted the
+    whole set, which fitted better), "remove" (pruned) or "gain_stand_in" (removed: a gain pattern does its
+    job); `gap` the held-out gap after it; `alternatives` the candidates an "add" step chose among."""
+
+    action: Literal["start", "add", "refit", "remove", "gain_stand_in"]
+    effect: str
+    gap: float
+    alternatives: tuple[Alternative, ...] = ()
+
+
+@dataclass(frozen=True)
+class GainSpot:
+    """One beam or range bin where a fitted gain pattern stands out: `at` in degrees (beams) or metres (ranges)."""
+
+    index: int
+    at: float
+    gain_db: float
+
+
+@dataclass(frozen=True)
+class GainPatternFit:
+    """A fixed gain pattern (per range and per beam, in dB, applied before any effect) fitted on top of a set of
+    effects: its level and ramp over range; `range_db` / `beam_db` the whole profiles; `beams` / `ranges` the
+    places where it stands out (isolated channels and the extremes of its smooth part); `gap` the held-out gap
+    with it; `share_of_gap` how much of the gap before it closes on top of the effects."""
+
+    level_db: float
+    ramp_db: float
+    range_db: tuple[float, ...]
+    beam_db: tuple[float, ...]
+    beams: tuple[GainSpot, ...]
+    ranges: tuple[GainSpot, ...]
+    gap: float
+    share_of_gap: float
+
+    def describe(self) -> str:
+        def spots(items: tuple[GainSpot, ...], unit: str) -> str:
+            return ", ".join(f"{s.at:.3g} {unit} ({s.gain_db:+.1f} dB)" for s in items) or "none"
+
+        return (f"level {self.level_db:+.1f} dB, ramp {self.ramp_db:+.1f} dB over range; beams standing out: "
+                f"{spots(self.beams, 'deg')}; ranges standing out: {spots(self.ranges, 'm')}")
+
+
+@dataclass(frozen=True)
+class StandIn:
+    """A selected effect dropped because a fixed gain pattern fitted in its place did at least as well."""
+
+    effect: str
+    params: dict[str, Any]
+    gain_pattern: GainPatternFit
+    gap_with_effect: float
+    gap_with_gain_pattern: float
+
+
+@dataclass(frozen=True)
+class SelectedEffect:
+    """A selected effect as finally fitted: `share` of the gap before it closed when it was added, `stability`
+    how often it was the best candidate of its step over bootstrap resamples of the held-out frames."""
+
+    name: str
+    params: dict[str, Any]
+    share: float
+    stability: float
+
+
+@dataclass(frozen=True)
+class AmbiguousGroup:
+    """Effects that explain the same part of the gap within the noise at one selection step (`step`: index in
+    the selection path): each with its share of the gap before and its selection frequency."""
+
+    step: int
+    effects: tuple[Alternative, ...]
+    shares: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Residual:
+    """What the selected effects leave: its size, whether its 95% interval excludes 0, the families and places
+    holding it (the part of the original gap still there), cells the correction made worse, and the fixed gain
+    pattern that explains part of it (None when it explains nothing on held-out frames)."""
+
+    size: float
+    fraction_of_gap_before: float
+    significant: bool
+    families: tuple[Share, ...]
+    where: Where
+    worsened_cells: tuple[HotCell, ...]
+    gain_pattern: GainPatternFit | None
+
+
+@dataclass(frozen=True)
+class Auc:
+    """Cross-validated classifier two-sample AUC and its standard error."""
+
+    auc: float
+    stderr: float
+
+
+@dataclass(frozen=True)
+class FrameCounts:
+    sim: int
+    real: int
+    sim_fit_used: int
+    sim_heldout_used: int
+    real_fit_used: int
+    real_heldout_used: int
+
+
+@dataclass(frozen=True)
+class Grid:
+    n_ranges: int
+    n_beams: int
+    range_m: tuple[float, float]
+    bearing_deg: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Examples:
+    """One held-out frame three ways (for the report's figure; not written to diagnosis.json)."""
+
+    sim: np.ndarray
+    corrected: np.ndarray
+    real: np.ndarray
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The whole diagnosis. `verdict`: "selected" (confident names), "ambiguous" (at least one step could not
+    tell its candidates apart: see `ambiguous`), "residual_only" (nothing selected) or "not_enough_frames" (too
+    few held-out frames for the bootstrap to separate anything: no ranking)."""
+
+    verdict: Verdict
+    gap_measure: str
+    gap_before: float
+    gap_before_ci95: tuple[float, float]
+    classifier_auc_before: Auc
+    family_gaps_before: dict[str, float]
+    where_before: Where
+    ranked_effects: tuple[RankedEffect, ...]
+    selected: tuple[str, ...]
+    selected_effects: tuple[SelectedEffect, ...]
+    ambiguous: tuple[AmbiguousGroup, ...]
+    selection_path: tuple[Step, ...]
+    selection_stopped: str
+    gain_stand_ins: tuple[StandIn, ...]
+    gap_after_selected: float
+    gap_after_selected_ci95: tuple[float, float]
+    classifier_auc_after_selected: Auc
+    gap_closed: float
+    family_gaps_after_selected: dict[str, float]
+    residual: Residual
+    maps_before: GapMaps
+    maps_after: GapMaps
+    frames: FrameCounts
+    grid: Grid
+    normalize: str
+    bootstrap_resamples: int
+    seconds: float
+    examples: Examples | None = dataclasses.field(default=None, compare=False)
+
+    @property
+    def top1(self) -> str:
+        return self.ranked_effects[0].name if self.ranked_effects else ""
+
+    def fitted_params(self) -> dict[str, dict[str, Any]]:
+        """Each effect's fitted parameters: as selected where selected, else its solo fit."""
+        out = {r.name: r.params for r in self.ranked_effects}
+        out.update({s.name: s.params for s in self.selected_effects})
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """The diagnosis.json content (everything but the example frames)."""
+        data = dataclasses.asdict(dataclasses.replace(self, examples=None))
+        del data["examples"]
+        return _jsonable(data)
+
+
+def write_diagnosis(diagnosis: Diagnosis, path: str | Path) -> Path:
+    path = Path(path)
+    path.write_text(json.dumps(diagnosis.to_json(), indent=2) + "\n")
+    return path
+
+
+def load_diagnosis(path: str | Path) -> Diagnosis:
+    """A diagnosis.json read back as the Diagnosis that wrote it (without the example frames)."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read a diagnosis: {exc}") from exc
+    return from_dict(Diagnosis, data, where=str(path))
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON values. A non-finite gap (an effect whose frames were invalid) stays Infinity, which Python's
+    json writes and reads back."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
