@@ -3,7 +3,10 @@ says, keeps shape and dtype, and is fixed by its seed; the registry covers every
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -219,3 +222,21 @@ def test_range_fixed_patterns_sit_at_their_place(name, raised):
 def test_fan_gain_drift_tilts_the_fan():
     out = run("uncatalogued/fan_gain_drift", frame_of(np.full((N_RANGES, N_BEAMS), 0.3)), tilt_db=6.0, bow_db=0.0)
     assert 20 * math.log10(out[:, -1].mean() / out[:, 0].mean()) == pytest.approx(6.0, abs=0.1)
+
+
+def test_the_bench_reads_a_diagnosis_from_the_design_contract_keys_alone():
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_diagnose_heldout.py"
+    spec = importlib.util.spec_from_file_location("bench_diagnose_heldout", path)
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = bench
+    spec.loader.exec_module(bench)
+    payload = {"gap_before": 2.0, "gap_after_selected": 0.5, "selected": ["range_blur", "motion_blur"],
+               "ranked_effects": [{"name": "motion_blur", "params": {}, "gap_after": 1.2},
+                                  {"name": "range_blur", "params": {}, "gap_after": 0.9}],
+               "residual": {"range_bins": [{"bin": 3, "range_m": [4.0, 4.5]}, {"bin": 1, "range_m": [1.0, 1.5]}],
+                            "size": 0.5}}
+    read = bench.read_diagnosis(payload)
+    assert bench.top1(read) == "range_blur" and read.ambiguous is None
+    assert bench.in_place(read, bench.Place(range_m=((4.2, 4.3),)))
+    assert not bench.in_place(read, bench.Place(range_m=((1.1, 1.2),)))  # only the top entry counts
+    assert bench.top1(bench.read_diagnosis({**payload, "selected": []})) == ""
