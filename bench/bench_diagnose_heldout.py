@@ -162,20 +162,22 @@ def parse_settings(text: str) -> list[tuple[str, int, tuple[str, ...], bool]]:
     return out
 
 
-def implementations(first_only: bool) -> list[str]:
-    if not first_only:
-        return list(IMPLEMENTATIONS)
+def implementations(first_only: bool, only: tuple[str, ...] = ()) -> list[str]:
+    """The implementations a setting runs: all, or the first form of each family (and every un-catalogued
+    effect); `only` keeps those whose name contains one of its strings."""
     seen: set[str] = set()
     keep = []
     for name, entry in IMPLEMENTATIONS.items():
-        if entry.family == UNCATALOGUED or entry.family not in seen:
+        if (not first_only or entry.family == UNCATALOGUED or entry.family not in seen) and (
+                not only or any(part in name for part in only)):
             keep.append(name)
-            seen.add(entry.family)
+        seen.add(entry.family)
     return keep
 
 
 def accuracy(settings: str, config: DiagnoseConfig, log: Callable[[str], None],
-             keep: Callable[[list[dict[str, Any]]], None] = lambda rows: None) -> list[dict[str, Any]]:
+             keep: Callable[[list[dict[str, Any]]], None] = lambda rows: None, only: tuple[str, ...] = (),
+             ) -> list[dict[str, Any]]:
     """Every case of every setting; `keep` sees the rows so far after each case (a long run's partial results)."""
     rows: list[dict[str, Any]] = []
     for scene, n, modes, first_only in parse_settings(settings):
@@ -183,7 +185,7 @@ def accuracy(settings: str, config: DiagnoseConfig, log: Callable[[str], None],
         real_source = clean_frames(scene, n, REAL_SEED)
         draws = np.random.default_rng([2026, n, len(scene)])
         cases: list[tuple[str | None, str]] = [(None, "null")]
-        cases += [(name, mode) for mode in modes for name in implementations(first_only)]
+        cases += [(name, mode) for mode in modes for name in implementations(first_only, only)]
         for index, (name, mode) in enumerate(cases):
             params = IMPLEMENTATIONS[name].draw(mode, draws) if name else {}  # type: ignore[arg-type]
             row = {"scene": scene, "frames": n, **run_case(sim, real_source, name, mode, params, config, index)}
@@ -209,7 +211,7 @@ def limits(config: DiagnoseConfig, repeats: int, n: int, quick: bool, log: Calla
         log(f"limits null repeat {k}: selected={','.join(row['selected']) or '-'}")
     for name, (param, values, held) in LIMITS.items():
         family = IMPLEMENTATIONS[name].family
-        for value in (values[1::2] if quick else values):
+        for value in (values[::2] if quick else values):
             for k, (sim, real_source) in enumerate(worlds):
                 row = run_case(sim, real_source, name, "sweep", {**held, param: value}, config, 1000 + k)
                 rows.append({"implementation": name, "family": family, "param": param, "value": value, "repeat": k,
@@ -335,8 +337,10 @@ def run(quick: bool = True) -> list[dict[str, Any]]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
-                        help=f"small diagnosis config and settings {QUICK_SETTINGS!r} (limits: every other value)")
+                        help=f"small diagnosis config, settings {QUICK_SETTINGS!r} (limits: 1st, 3rd, 5th value)")
     parser.add_argument("--settings", help=f"scene:frames[:inside+wide][:first],... (full default: {FULL_SETTINGS})")
+    parser.add_argument("--only", default="", help="run only implementations whose name contains one of these "
+                                                   "comma-separated strings (e.g. range_blur,column_stripes)")
     parser.add_argument("--limits", action="store_true", help="detection-limit sweeps instead of the accuracy run")
     parser.add_argument("--repeats", type=int, default=3, help="repeats per sweep value (--limits)")
     parser.add_argument("--limit-frames", type=int, default=24, help="frames per set in the sweeps (--limits)")
@@ -358,7 +362,8 @@ def main() -> int:
         summary = limit_summary(rows)
         print_limits(summary, args.repeats)
     else:
-        rows = accuracy(args.settings or (QUICK_SETTINGS if args.quick else FULL_SETTINGS), config, log, keep)
+        only = tuple(filter(None, (s.strip() for s in args.only.split(","))))
+        rows = accuracy(args.settings or (QUICK_SETTINGS if args.quick else FULL_SETTINGS), config, log, keep, only)
         summary = summarise(rows)
         print_accuracy(summary)
     run_info = {"command": " ".join(sys.argv), "seconds": time.perf_counter() - started, "grid": list(GRID),
