@@ -79,12 +79,20 @@ def read_diagnosis(result: Any) -> Read:
     optional `ambiguous`): the result object is only asked for its JSON form, whatever its Python type."""
     payload = result if isinstance(result, dict) else result.to_json()
     residual = payload.get("residual") or {}
+    # places sit in `residual` itself or under `residual.where`; profile bins name their interval `span`
+    nested = residual.get("where") if isinstance(residual, dict) else None
+    where = nested if isinstance(nested, dict) else residual
+    span_as = {"range_bins": "range_m", "bearing_bins": "bearing_deg"}
     places: list[dict[str, Any]] = []
-    if isinstance(residual, dict):
-        for key, entries in residual.items():
-            if isinstance(entries, list):
-                places += [{"list": key, "rank": i, **e} for i, e in enumerate(entries)
-                           if isinstance(e, dict) and ("range_m" in e or "bearing_deg" in e)]
+    if isinstance(where, dict):
+        for key, entries in where.items():
+            if not isinstance(entries, list):
+                continue
+            for i, e in enumerate(entries):
+                if isinstance(e, dict) and "span" in e and key in span_as:
+                    e = {**e, span_as[key]: e["span"]}
+                if isinstance(e, dict) and ("range_m" in e or "bearing_deg" in e):
+                    places.append({"list": key, "rank": i, **e})
     return Read(gap_before=float(payload["gap_before"]), gap_after_selected=float(payload["gap_after_selected"]),
                 selected=[str(s) for s in payload["selected"]],
                 ranked=[(str(r["name"]), float(r["gap_after"])) for r in payload["ranked_effects"]],

@@ -240,3 +240,7 @@ def test_the_bench_reads_a_diagnosis_from_the_design_contract_keys_alone():
     assert bench.in_place(read, bench.Place(range_m=((4.2, 4.3),)))
     assert not bench.in_place(read, bench.Place(range_m=((1.1, 1.2),)))  # only the top entry counts
     assert bench.top1(bench.read_diagnosis({**payload, "selected": []})) == ""
+    # the reworked diagnosis nests the places under residual.where and names a profile bin's interval `span`
+    nested = {**payload, "residual": {"size": 0.5, "where": {"cells": [], "bearing_bins": [
+        {"bin": 7, "span": [10.0, 12.0], "gap": 0.1, "share": 0.4}]}}}
+    assert bench.in_place(bench.read_diagnosis(nested), bench.Place(bearing_deg=((11.0, 11.5),)))
