@@ -6,7 +6,7 @@ Each input is tried as one ping message (`decode_ping`) and as a whole recording
 /dev/shm when it exists): raw message streams and V1 logs, compressed or not. Anything but frames or
 FormatError is a crash, and so is an input that makes a reader allocate more than 64 MiB at once (tracemalloc
 peak; numpy buffers are traced too). The corpus starts from valid pings,
-raw streams and logs; interesting inputs are kept in tests/data/fuzz/oculus/ and replayed by
+raw streams and logs; interesting inputs are kept in tests/data/fuzz/oculus_inputs.json and replayed by
 tests/test_fuzz_regressions.py.
 """
 
@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
-import tracemalloc
 from pathlib import Path
 
 import atheris
@@ -24,25 +23,14 @@ import numpy  # noqa: F401 - imported first so that only our code is instrumente
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from fuzz_harness import fuzz  # noqa: E402  (beside this script)
+
 with atheris.instrument_imports():
     from sonar_realism.errors import FormatError
     from sonar_realism.io.oculus import decode_ping, read_oculus
 
 _SCRATCH = Path(tempfile.mkdtemp(prefix="fuzz-oculus-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None))
 _FILE = _SCRATCH / "input.bin"
-
-
-MAX_ALLOCATION = 64 << 20  # the issue's bound on what one input may make a decoder allocate
-
-
-def check(data: bytes) -> None:
-    tracemalloc.reset_peak()
-    before = tracemalloc.get_traced_memory()[0]
-    try:
-        decode(data)
-    finally:
-        peak = tracemalloc.get_traced_memory()[1] - before
-    assert peak < MAX_ALLOCATION, f"one input allocated {peak} bytes"
 
 
 def decode(data: bytes) -> None:
@@ -66,17 +54,5 @@ def seeds() -> list[bytes]:
     return [*PINGS, *RECORDINGS]
 
 
-def main() -> None:
-    corpus = [a for a in sys.argv[1:] if not a.startswith("-")]
-    if corpus and not any(a.startswith("-merge") for a in sys.argv):  # seeds go into the corpus being fuzzed
-        folder = Path(corpus[0])
-        folder.mkdir(parents=True, exist_ok=True)
-        for index, seed in enumerate(seeds()):
-            (folder / f"seed-{index:03d}").write_bytes(seed)
-    tracemalloc.start()
-    atheris.Setup(sys.argv, check)
-    atheris.Fuzz()
-
-
 if __name__ == "__main__":
-    main()
+    fuzz(decode, seeds)
