@@ -7,7 +7,8 @@ import torch
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.texture import grain
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
-from sonar_realism.models.speckle import EXPORT_LEVELS, SpeckleField, fit_speckle
+from sonar_realism.models.speckle import SpeckleField
+from sonar_realism.models.speckle_fit import EXPORT_LEVELS, fit_speckle
 
 
 def correlated_speckle(shape, n, seed, smear_beams):

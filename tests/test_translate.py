@@ -130,7 +130,7 @@ def test_shipped_checkpoint_loads_and_translates():
 def texture_checkpoint(tmp_path):
     import torch
 
-    from sonar_realism.models.speckle import fit_speckle
+    from sonar_realism.models.speckle_fit import fit_speckle
 
     torch.manual_seed(0)
     config = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8), latent_dim=8, bottleneck_hw=(2, 2), skips=1,

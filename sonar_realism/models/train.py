@@ -59,7 +59,7 @@ from sonar_realism.models.datasets import (
     to_model_grid,
 )
 from sonar_realism.models.device import pick_device
-from sonar_realism.models.speckle import fit_speckle
+from sonar_realism.models.speckle_fit import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
 TEXTURE_FIT_FRAMES = 96  # evenly spaced over the training recordings: enough for 129 quantiles in 8 level bins

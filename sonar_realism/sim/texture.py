@@ -22,6 +22,7 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
+from sonar_realism.models.speckle_fit import KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE, fit_speckle
 
 if TYPE_CHECKING:
     from sonar_realism.models.speckle import SpeckleField
@@ -41,8 +42,6 @@ class SensorTexture:
     kernel: tuple[tuple[float, ...], ...]
 
     def validate(self) -> None:
-        from sonar_realism.models.speckle import KERNEL_SIZE, LEVEL_BINS, QUANTILES
-
         shapes = {"level_edges": ((LEVEL_BINS - 1,), np.asarray(self.level_edges, dtype=np.float64)),
                   "ratio_quantiles": ((LEVEL_BINS, QUANTILES), np.asarray(self.ratio_quantiles, dtype=np.float64)),
                   "kernel": ((KERNEL_SIZE, KERNEL_SIZE), np.asarray(self.kernel, dtype=np.float64))}
@@ -78,8 +77,6 @@ def _rounded(values: np.ndarray) -> tuple:
 
 def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     """Fit on real frames scaled to their maximum, [ranges, beams] at the sensor's resolution."""
-    from sonar_realism.models.speckle import TILE, fit_speckle
-
     usable = [image for image in images if min(image.shape) >= TILE]
     if not usable:
         raise ConfigError(f"texture: no frame is at least {TILE} x {TILE} samples; cannot fit the sensor's texture")
