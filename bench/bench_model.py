@@ -4,18 +4,18 @@
     python bench/bench_model.py            (or: python bench/run.py model)
     python bench/bench_model.py --diversity   (sample diversity with 0, 2, 3 skip connections; trains small models)
 
-A row times `Translator.translate([frame], n)` end to end (normalisation, encode once, n decodes, output
-frame) for a frame already on the model grid, i.e. the streaming case of one ping at a time. The shipped
-checkpoint's architecture is used (mean field decoded at half the grid + speckle layer at the frame's own
-resolution), and the paper configuration (sonar_realism/assets/cdfcvae_paper.*) beside it at n = 4 on both
-grids; the ratio column is time against the CycleGAN generator timed in the same block, so a busy machine
-hurts all alike. Goals (issue 12): >= 40 frames/s at 128 × 128 and >= 10 frames/s at 512 × 256, n = 4, CPU.
-With CUDA available, GPU rows are added.
+A row times `Translator.translate([frame], n)` end to end for one frame of the given size, i.e. the
+streaming case of one ping at a time, with the checkpoints as shipped: the frame is resampled to the model's
+grid (128 x 128 for both), encoded once, n latents decoded (the shipped model decodes its mean field at half
+that grid), the samples resampled back onto the frame's own ranges and bearings, and the shipped model's
+speckle layer drawn at the frame's own resolution. The paper configuration (sonar_realism/assets/
+cdfcvae_paper.*) runs beside it at n = 4; the ratio column is time against the CycleGAN generator run at the
+frame's full size in the same block, so a busy machine hurts all alike. Goals (issue 12): >= 40 frames/s at
+128 × 128 and >= 10 frames/s at 512 × 256, n = 4, CPU. With CUDA available, GPU rows are added.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import statistics
 import sys
 import tempfile
@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sonar_realism.data import real_oculus_dir  # noqa: E402
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges  # noqa: E402
-from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint  # noqa: E402
+from sonar_realism.models.cdfcvae import CDFCVAEConfig  # noqa: E402
 from sonar_realism.models.translate import DEFAULT_CHECKPOINT, Translator  # noqa: E402
 
 GRIDS = ((128, 128), (512, 256))  # (n_ranges, n_beams)
@@ -58,61 +58,56 @@ def _cyclegan_generator() -> torch.nn.Module | None:
     return ResnetGenerator().eval()
 
 
-def _config(path: Path) -> CDFCVAEConfig:
-    return load_checkpoint(path)[0].cfg if path.exists() else CDFCVAEConfig()
-
-
 def _frame(grid: tuple[int, int]) -> SonarImage:
     rng = np.random.default_rng(0)
     return SonarImage(rng.integers(0, 255, grid, dtype=np.uint8), uniform_ranges(grid[0], 30.0),
                       uniform_azimuths(grid[1], np.radians(130)))
 
 
+def _label(translator: Translator, name: str) -> str:
+    cfg = translator.model.cfg
+    return f"{name} {'-'.join(map(str, cfg.widths))} @ {cfg.grid[0]}x{cfg.grid[1]}"
+
+
 def run() -> list[dict]:
     torch.set_num_threads(max(1, torch.get_num_threads()))
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    shipped, paper = _config(DEFAULT_CHECKPOINT), _config(PAPER_CHECKPOINT)
     generator = _cyclegan_generator()
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for device in devices:
-            for grid in GRIDS:
-                variants = [("shipped " + "-".join(map(str, shipped.widths)), dataclasses.replace(shipped, grid=grid)),
-                            ("paper " + "-".join(map(str, paper.widths)), dataclasses.replace(paper, grid=grid))]
-                frame = _frame(grid)
-                repeats = 8 if grid == (128, 128) else 3
-                cyclegan_s = None
-                if generator is not None:
-                    g = generator.to(device)
-                    x = torch.rand(1, 1, *grid, device=device) * 2 - 1
+    for device in devices:
+        translators = [(_label(t, name), t) for name, t in (
+            ("shipped", Translator.from_checkpoint(DEFAULT_CHECKPOINT, device=device)),
+            ("paper", Translator.from_checkpoint(PAPER_CHECKPOINT, device=device)))]
+        for grid in GRIDS:
+            frame = _frame(grid)
+            repeats = 8 if grid == (128, 128) else 3
+            cyclegan_s = None
+            if generator is not None:
+                g = generator.to(device)
+                x = torch.rand(1, 1, *grid, device=device) * 2 - 1
 
-                    def cyclegan_step(g: torch.nn.Module = g, x: torch.Tensor = x, device: str = device) -> None:
-                        with torch.inference_mode():
-                            g(x)
-                        if device == "cuda":
-                            torch.cuda.synchronize()
+                def cyclegan_step(g: torch.nn.Module = g, x: torch.Tensor = x, device: str = device) -> None:
+                    with torch.inference_mode():
+                        g(x)
+                    if device == "cuda":
+                        torch.cuda.synchronize()
 
-                    cyclegan_s = _timed(cyclegan_step, repeats)
-                for label, cfg in variants:
-                    model = CDFCVAE(cfg)
-                    if model.texture is not None:  # timing does not depend on the fitted values: identity speckle
-                        model.texture.fitted.fill_(1.0)
-                    path = save_checkpoint(model, Path(tmp) / f"{label.replace(' ', '_')}.safetensors")
-                    translator = Translator.from_checkpoint(path, device=device)
-                    for n in SAMPLES if label.startswith("shipped") else (4,):
-                        seconds = _timed(lambda t=translator, n=n, f=frame: t.translate([f], n, seed=0), repeats)
-                        row = {"device": device, "grid (R x B)": f"{grid[0]}x{grid[1]}", "model": label, "n": n,
-                               "ms/frame": 1e3 * seconds, "frames/s": 1.0 / seconds, "samples/s": n / seconds}
-                        if cyclegan_s is not None:
-                            row["cyclegan ms/frame"] = 1e3 * cyclegan_s
-                            row["time vs cyclegan"] = seconds / cyclegan_s
-                        else:
-                            row["cyclegan ms/frame"] = "n/a (sonar_realism.models.cyclegan missing)"
-                        if device == "cpu" and n == 4:
-                            goal = GOAL_FPS_N4[grid]
-                            row["goal"] = f"{goal:g} frames/s: {'met' if 1.0 / seconds >= goal else 'missed'}"
-                        rows.append(row)
-                        print(row, file=sys.stderr)
+                cyclegan_s = _timed(cyclegan_step, repeats)
+            for label, translator in translators:
+                for n in SAMPLES if label.startswith("shipped") else (4,):
+                    seconds = _timed(lambda t=translator, n=n, f=frame: t.translate([f], n, seed=0), repeats)
+                    row = {"device": device, "frame (R x B)": f"{grid[0]}x{grid[1]}", "checkpoint": label, "n": n,
+                           "ms/frame": 1e3 * seconds, "frames/s": 1.0 / seconds, "samples/s": n / seconds}
+                    if cyclegan_s is not None:
+                        row["cyclegan ms/frame"] = 1e3 * cyclegan_s
+                        row["time vs cyclegan"] = seconds / cyclegan_s
+                    else:
+                        row["cyclegan ms/frame"] = "n/a (sonar_realism.models.cyclegan missing)"
+                    if device == "cpu" and n == 4:
+                        goal = GOAL_FPS_N4[grid]
+                        row["goal"] = f"{goal:g} frames/s: {'met' if 1.0 / seconds >= goal else 'missed'}"
+                    rows.append(row)
+                    print(row, file=sys.stderr)
     return rows
 
 

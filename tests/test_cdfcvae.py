@@ -60,6 +60,34 @@ def test_skip_and_upsample_options(skips, upsample):
     assert torch.allclose(out_a, model.decoder(mu, all_zeroed)) == (skips == 0)
 
 
+@pytest.mark.parametrize("skips", [0, 2])
+def test_sampling_decodes_as_the_plain_network_does(skips):
+    """Sampling runs the nearest-upsample + conv as the transposed conv it equals and the skip half of each fuse conv
+    once per input: the same numbers as upsampling, concatenating repeated skips and convolving."""
+    cfg = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8, 16), latent_dim=8, skips=skips, upsample="resize_conv")
+    torch.manual_seed(skips)
+    model = CDFCVAE(cfg).eval().requires_grad_(False)
+    decoder = model.decoder
+    for parameter in model.parameters():  # away from the default init, so every tap matters
+        parameter.add_(0.1 * torch.randn_like(parameter))
+    x, n = torch.rand(3, 1, 32, 32), 4
+    mu, _, skips_features = model.encoder_sim(x)
+    z = mu.repeat_interleave(n, dim=0) + 0.5 * torch.randn(3 * n, 8)
+
+    def plain(z, features):
+        h = decoder.act(decoder.latent_to_map(z)).view(z.shape[0], -1, *decoder.bottleneck_hw)
+        h = decoder.deep(torch.nn.functional.interpolate(h, size=decoder.deep_hw, mode="bilinear"))
+        for step, (up, fuse) in enumerate(zip(decoder.ups, decoder.fuse, strict=True)):
+            level = len(features) - 2 - step
+            h = up[1](torch.nn.functional.interpolate(h, scale_factor=2, mode="nearest"))
+            if level in decoder.skip_levels:
+                h = torch.cat([h, features[level].repeat_interleave(n, dim=0)], dim=1)
+            h = fuse(h)
+        return torch.sigmoid(decoder.out(h))
+
+    torch.testing.assert_close(decoder(z, skips_features), plain(z, skips_features), atol=1e-5, rtol=1e-5)
+
+
 @pytest.mark.parametrize("bad", [{"grid": [30, 32]}, {"skips": 4}, {"widths": [8]}, {"dropout": 1.0}])
 def test_invalid_architecture_is_rejected(bad):
     with pytest.raises(ConfigError):

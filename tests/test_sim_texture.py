@@ -69,7 +69,7 @@ def test_texture_round_trips_through_calib_json_and_bad_tables_are_refused(textu
     save_calibration(dataclasses.replace(truth(), texture=texture), path)
     assert load_calibration(path).texture == texture
     data = json.loads(path.read_text())
-    data["texture"]["kernel"] = data["texture"]["kernel"][:5]
+    data["texture"]["kernel"] = data["texture"]["kernel"][:-1]  # a grain group short
     path.write_text(json.dumps(data))
     with pytest.raises(ConfigError, match="texture.kernel"):
         load_calibration(path)

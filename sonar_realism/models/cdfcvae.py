@@ -37,7 +37,7 @@ from sonar_realism.models.speckle import SpeckleField
 from sonar_realism.models.vgg import RELU_INDEX, VGGFeatures
 
 CHECKPOINT_FORMAT = "sonar_realism.cdfcvae"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2  # 2: the speckle layer's grain kernel per level group
 
 
 @dataclass(frozen=True)
@@ -162,6 +162,8 @@ class Decoder(nn.Module):
         self.out = nn.Conv2d(widths[lowest], 1, 1)
 
     def forward(self, z: torch.Tensor, skips: list[torch.Tensor]) -> torch.Tensor:
+        """z [B·n, latent]: n latents per input, input after input; skips: the encoder's features of the B
+        inputs. Returns [B·n, 1, H, W]."""
         x = self.act(self.latent_to_map(z)).view(z.shape[0], -1, *self.bottleneck_hw)
         if tuple(x.shape[-2:]) != self.deep_hw:
             x = F.interpolate(x, size=self.deep_hw, mode="bilinear", align_corners=False)
@@ -169,14 +171,39 @@ class Decoder(nn.Module):
         deepest = len(skips) - 1
         for step, (up, fuse) in enumerate(zip(self.ups, self.fuse, strict=True)):
             level = deepest - 1 - step
-            x = up(x)
-            if level in self.skip_levels:
-                x = torch.cat([x, skips[level]], dim=1)
-            x = self.dropout(fuse(x))
+            x = up(x) if self.training or not isinstance(up[0], nn.Upsample) else nearest_up_conv(x, up[1])
+            x = self.dropout(_fuse_skip(fuse, x, skips[level]) if level in self.skip_levels else fuse(x))
         x = self.out(x)
         if tuple(x.shape[-2:]) != tuple(self.grid):
             x = F.interpolate(x, size=self.grid, mode="bilinear", align_corners=False)
         return torch.sigmoid(x)
+
+
+def _fuse_skip(fuse: nn.Sequential, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+    """`fuse` (3x3 conv + activation) of the channel concatenation [x, skip], with the convolution split in
+    its x and skip halves: the skip half runs once per input and is added to each of its n samples (x holds
+    n samples per input of `skip`), instead of once per sample on a repeated copy."""
+    conv, activation = fuse[0], fuse[1]
+    channels = x.shape[1]
+    own = F.conv2d(x, conv.weight[:, :channels], conv.bias, padding=1)
+    shared = F.conv2d(skip, conv.weight[:, channels:], padding=1)
+    n = x.shape[0] // skip.shape[0]
+    return activation((own.unflatten(0, (skip.shape[0], n)) + shared[:, None]).flatten(0, 1))
+
+
+def nearest_up_conv(x: torch.Tensor, layer: nn.Sequential) -> torch.Tensor:
+    """`layer` (3x3 conv, padding 1, + activation) applied to x upsampled 2x by nearest neighbour, computed
+    as the one transposed convolution (4x4, stride 2) it equals: no 4x copy of the input, 16/36 of the
+    multiplies, same output (on a CPU the upsampled copy cost more than the convolution; docs/RESULTS.md)."""
+    conv, activation = layer[0], layer[1]
+    # Output row 2i + a reads source rows (i - 1, i) with taps (w0, w1 + w2) for a = 0 and (i, i + 1) with
+    # (w0 + w1, w2) for a = 1; a 4-tap transposed kernel holds exactly these: (w2, w1 + w2, w0 + w1, w0).
+    fold = _NEAREST_FOLD.to(conv.weight)
+    kernel = torch.einsum("ya,oiab,xb->ioyx", fold, conv.weight, fold)
+    return activation(F.conv_transpose2d(x, kernel, conv.bias, stride=2, padding=1))
+
+
+_NEAREST_FOLD = torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 
 
 class CDFCVAE(nn.Module):
@@ -222,8 +249,7 @@ class CDFCVAE(nn.Module):
         eps = torch.stack([torch.randn((n, mu.shape[1]), generator=generator, device=mu.device, dtype=mu.dtype)
                            for _ in range(batch)])
         z = (mu[:, None] + temperature * torch.exp(0.5 * logvar)[:, None] * eps).flatten(0, 1)
-        repeated = [s.repeat_interleave(n, dim=0) for s in skips]
-        return self.decoder(z, repeated).view(batch, n, *x.shape[-2:])
+        return self.decoder(z, skips).view(batch, n, *x.shape[-2:])
 
 
 TARGET_BLUR_SIGMA = 1.0  # grid cells: what a mean field on the model grid can hold

@@ -9,12 +9,15 @@ the same frames (its reconstructions, resampled back to the frames' grids):
 - the ratio r = I / M in each of `LEVEL_BINS` bins of M: a quantile table (the marginal; dark bins keep the
   noise floor's and quantisation's shape, bright bins the speckle's heavy tail);
 - the grain: r is mapped to a standard normal field through its own bin's distribution (a Gaussian copula),
-  and the average power spectrum of that field over tiles gives a zero-phase kernel which, convolved with
-  white noise, reproduces the correlation along range and across beams (per-beam stripes included).
+  and the autocorrelation of that field around the pixels of each group of level bins (GRAIN_GROUPS) gives a
+  zero-phase kernel which, convolved with white noise, reproduces the correlation along range and across
+  beams at that level (the dark water column's per-beam stripes, the lit seabed's finer grain).
 
-Sampling (`SpeckleField.sample`): white noise -> kernel (circular convolution by FFT) -> unit normal field
--> r from the quantile table (spaced in normal scores) of each pixel's level bin -> I = M * r, then each
-sample is scaled to its maximum and quantised as the real export was (8-bit, one pixel at full scale).
+Sampling (`SpeckleField.sample`): one white noise per sample -> each group's kernel (circular convolution by
+FFT) -> unit normal fields, each pixel taking its level group's -> r from the quantile table (spaced in
+normal scores) of its level bin -> I = M * r, then each sample is scaled to its maximum and quantised as the
+real export was (8-bit, one pixel at full scale). The groups share the noise, so their fields agree where
+the level crosses from one group to the next.
 """
 
 from __future__ import annotations
@@ -26,11 +29,15 @@ from torch import nn
 from sonar_realism.errors import ConfigError
 from sonar_realism.models.speckle_fit import (
     EXPORT_LEVELS,
+    GRAIN_GROUPS,
     KERNEL_SIZE,
     LEVEL_BINS,
     NORMAL_SPAN,
     QUANTILES,
 )
+
+DENSE_STEPS = 1024  # normal scores at which the quantile table is looked up
+LEVEL_STEPS = 4096  # mean levels at which the level bin is looked up
 
 
 class SpeckleField(nn.Module):
@@ -40,14 +47,14 @@ class SpeckleField(nn.Module):
         super().__init__()
         self.register_buffer("level_edges", torch.linspace(0.0, 1.0, LEVEL_BINS + 1)[1:-1])
         self.register_buffer("ratio_quantiles", torch.ones(LEVEL_BINS, QUANTILES))
-        kernel = torch.zeros(KERNEL_SIZE, KERNEL_SIZE)
-        kernel[KERNEL_SIZE // 2, KERNEL_SIZE // 2] = 1.0
+        kernel = torch.zeros(GRAIN_GROUPS, KERNEL_SIZE, KERNEL_SIZE)
+        kernel[:, KERNEL_SIZE // 2, KERNEL_SIZE // 2] = 1.0
         self.register_buffer("kernel", kernel)
         self.register_buffer("fitted", torch.zeros(()))
-        self._spectra: dict[tuple[int, int], torch.Tensor] = {}
+        self._derived: dict[tuple, torch.Tensor] = {}  # kernel spectra per grid, the dense quantile table
 
     def _load_from_state_dict(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
-        self._spectra.clear()  # a new kernel arrives with the state
+        self._derived.clear()  # a new fit arrives with the state
         super()._load_from_state_dict(*args, **kwargs)
 
     @property
@@ -59,47 +66,71 @@ class SpeckleField(nn.Module):
         self.ratio_quantiles.copy_(torch.from_numpy(ratio_quantiles.astype(np.float32)))
         self.kernel.copy_(torch.from_numpy(kernel.astype(np.float32)))
         self.fitted.fill_(1.0)
-        self._spectra.clear()
+        self._derived.clear()
 
-    def correlated_normal(self, n: int, shape: tuple[int, int], generator: torch.Generator | None) -> torch.Tensor:
-        """[n, H, W] unit-variance normal fields with the fitted grain."""
-        rows, cols = shape
-        noise = torch.randn((n, rows, cols), generator=generator, dtype=torch.float32)
-        field = torch.fft.irfft2(torch.fft.rfft2(noise) * self._kernel_spectrum(rows, cols), s=(rows, cols))
-        spread = field.flatten(1).std(dim=1).clamp_min(1e-6)
-        return field / spread[:, None, None]
+    def level_bins(self, mean: torch.Tensor) -> torch.Tensor:
+        """Each pixel's level bin (int64), looked up at LEVEL_STEPS levels: one lookup instead of a search."""
+        key = ("bins",)
+        if key not in self._derived:
+            levels = torch.linspace(0.0, 1.0, LEVEL_STEPS)
+            self._derived[key] = torch.bucketize(levels, self.level_edges.float())
+        step = (mean * (LEVEL_STEPS - 1)).round_().clamp_(0, LEVEL_STEPS - 1).long()
+        return torch.take(self._derived[key], step)
 
-    def _kernel_spectrum(self, rows: int, cols: int) -> torch.Tensor:
-        """rfft2 of the kernel laid circularly on a rows x cols grid, centre at (0, 0); cached per grid."""
-        key = (rows, cols)
-        if key not in self._spectra:
+    def correlated_normal(self, bins: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+        """[n, H, W] unit-variance normal fields with the fitted grain of each pixel's level bin [n, H, W]."""
+        n, rows, cols = bins.shape
+        noise = torch.fft.rfft2(torch.randn((n, rows, cols), generator=generator, dtype=torch.float32))
+        groups = bins // (LEVEL_BINS // GRAIN_GROUPS)
+        out: torch.Tensor | None = None
+        for group, spectrum in enumerate(self._kernel_spectra(rows, cols)):
+            members = groups == group
+            if not members.any():
+                continue
+            field = torch.fft.irfft2(noise * spectrum, s=(rows, cols))
+            out = field if out is None else torch.where(members, field, out)
+        assert out is not None
+        return out
+
+    def _kernel_spectra(self, rows: int, cols: int) -> torch.Tensor:
+        """rfft2 of each group's kernel laid circularly on a rows x cols grid, centre at (0, 0), at unit energy
+        (so white noise through it has unit variance on any grid); cached per grid."""
+        key = ("spectra", rows, cols)
+        if key not in self._derived:
             taps = torch.arange(KERNEL_SIZE) - KERNEL_SIZE // 2
             index_r = (taps % rows)[:, None].expand(KERNEL_SIZE, KERNEL_SIZE)
             index_c = (taps % cols)[None, :].expand(KERNEL_SIZE, KERNEL_SIZE)
-            laid = torch.zeros((rows, cols), dtype=torch.float32)
-            laid.index_put_((index_r, index_c), self.kernel.float(), accumulate=True)
-            self._spectra[key] = torch.fft.rfft2(laid)
-        return self._spectra[key]
+            laid = torch.zeros((GRAIN_GROUPS, rows, cols), dtype=torch.float32)
+            for group in range(GRAIN_GROUPS):
+                laid[group].index_put_((index_r, index_c), self.kernel[group].float(), accumulate=True)
+            laid /= laid.square().sum(dim=(1, 2), keepdim=True).sqrt().clamp_min(1e-12)
+            self._derived[key] = torch.fft.rfft2(laid)
+        return self._derived[key]
 
-    def ratios(self, mean: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+    def _dense_quantiles(self) -> torch.Tensor:
+        """The quantile table resampled to DENSE_STEPS normal scores per bin, flattened: one lookup per pixel
+        instead of an interpolation between two (the steps are 0.01 normal scores apart)."""
+        key = ("quantiles",)
+        if key not in self._derived:
+            position = torch.linspace(0.0, QUANTILES - 1, DENSE_STEPS)
+            low = position.floor().long().clamp(max=QUANTILES - 2)
+            frac = position - low
+            table = self.ratio_quantiles.float()
+            self._derived[key] = (table[:, low] + frac * (table[:, low + 1] - table[:, low])).flatten()
+        return self._derived[key]
+
+    def ratios(self, bins: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
         """r for each pixel: the quantile of its level bin at the normal field's probability."""
-        position = ((normal + NORMAL_SPAN) / (2 * NORMAL_SPAN)).clamp(0.0, 1.0) * (QUANTILES - 1)
-        low = position.floor().long().clamp(max=QUANTILES - 2)
-        frac = position - low
-        bins = torch.bucketize(mean.contiguous(), self.level_edges)
-        table = self.ratio_quantiles[bins.flatten()]  # [P, Q]
-        low_flat = low.flatten()[:, None]
-        below = table.gather(1, low_flat).squeeze(1)
-        above = table.gather(1, low_flat + 1).squeeze(1)
-        return (below + frac.flatten() * (above - below)).view_as(mean)
+        step = ((normal + NORMAL_SPAN) * ((DENSE_STEPS - 1) / (2 * NORMAL_SPAN))).round_().clamp_(0, DENSE_STEPS - 1)
+        return torch.take(self._dense_quantiles(), bins * DENSE_STEPS + step.long())
 
     def sample(self, mean: np.ndarray, generator: torch.Generator | None) -> np.ndarray:
         """Speckled, max-scaled, 8-bit-quantised samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W]."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's speckle statistics were never fitted")
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))
-        normal = self.correlated_normal(mean_t.shape[0], tuple(mean_t.shape[1:]), generator)
-        image = mean_t * self.ratios(mean_t, normal)
+        bins = self.level_bins(mean_t)
+        image = mean_t * self.ratios(bins, self.correlated_normal(bins, generator))
         peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
-        image = torch.round(image / peak[:, None, None] * EXPORT_LEVELS) / EXPORT_LEVELS
+        image = torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS
         return image.numpy()

@@ -13,6 +13,10 @@ LEVEL_BINS = 8
 QUANTILES = 129
 NORMAL_SPAN = 4.5  # the quantile table is spaced evenly in normal scores over [-span, span]: tails resolved
 KERNEL_SIZE = 33  # odd; the grain of a forward-looking sonar spans a few bins, far less than this
+# Level bins share a grain kernel in groups: on the real Oculus set the dark water column (per-beam stripes)
+# is correlated along range at lag 1 about 0.6, the lit seabed about 0.25; one kernel for all levels gave
+# everything about 0.43 (docs/RESULTS.md).
+GRAIN_GROUPS = 4
 TILE = 64
 MEAN_FLOOR = 0.5 / 255.0  # below half an 8-bit step the ratio I / M says nothing about texture
 EXPORT_LEVELS = 255  # the real set is 8-bit, scaled so that its brightest pixel is 255
@@ -20,7 +24,8 @@ EXPORT_LEVELS = 255  # the real set is 8-bit, scaled so that its brightest pixel
 
 def fit_speckle(images: list[np.ndarray], means: list[np.ndarray], seed: int = 0
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(level_edges [LEVEL_BINS-1], ratio_quantiles [LEVEL_BINS, QUANTILES], kernel [KERNEL_SIZE]^2).
+    """(level_edges [LEVEL_BINS-1], ratio_quantiles [LEVEL_BINS, QUANTILES],
+    kernels [GRAIN_GROUPS, KERNEL_SIZE, KERNEL_SIZE]: one grain kernel per group of level bins).
 
     `images`: real frames, each scaled to its maximum, [R, B] at the sensor's resolution; `means`: the model's
     mean field of each frame on the same grid.
@@ -50,20 +55,60 @@ def fit_speckle(images: list[np.ndarray], means: list[np.ndarray], seed: int = 0
         high = np.searchsorted(table[k], values, side="right")
         position = low - 0.5 + rng.random(values.size) * np.maximum(high - low, 1)
         normal[in_bin] = np.interp(position, np.arange(QUANTILES), scores)
-    power = np.zeros((TILE, TILE))
-    tiles = 0
+    kernels = grain_kernels(normal, bins // (LEVEL_BINS // GRAIN_GROUPS), [image.shape for image in images])
+    return edges, table, kernels
+
+
+def grain_kernels(normal: np.ndarray, groups: np.ndarray, shapes: list[tuple[int, ...]]) -> np.ndarray:
+    """[GRAIN_GROUPS, KERNEL_SIZE, KERNEL_SIZE] zero-phase kernels, each reproducing the autocorrelation of the
+    normal-score field around the pixels of its level group.
+
+    `normal` and `groups` are the frames' fields flattened one after another (`shapes`). The autocorrelation
+    around group g is Σ m_g(x) f(x) f(x + τ) / Σ m_g(x) over TILE x TILE tiles (zero-padded, so no wrap); its
+    power spectrum's square root is the kernel. A group with too few pixels takes the pooled estimate."""
+    padded = 2 * TILE
+    window = np.zeros((padded, padded))
+    window[:TILE, :TILE] = 1.0
+    window_spectrum = np.fft.rfft2(window)
+    products = np.zeros((GRAIN_GROUPS, padded, padded))
+    counts = np.zeros((GRAIN_GROUPS, padded, padded))
     offset = 0
-    for image in images:
-        field = normal[offset:offset + image.size].reshape(image.shape)
-        offset += image.size
-        for r in range(0, image.shape[0] - TILE + 1, TILE):
-            for c in range(0, image.shape[1] - TILE + 1, TILE):
-                tile = field[r:r + TILE, c:c + TILE]
-                power += np.abs(np.fft.fft2(tile - tile.mean())) ** 2
-                tiles += 1
-    kernel_full = np.real(np.fft.ifft2(np.sqrt(power / tiles)))
-    kernel_full = np.fft.fftshift(kernel_full)
-    centre, half = TILE // 2, KERNEL_SIZE // 2
-    kernel = kernel_full[centre - half:centre + half + 1, centre - half:centre + half + 1]
-    kernel = kernel / np.sqrt(np.sum(kernel ** 2))
-    return edges, table, kernel
+    for shape in shapes:
+        size = int(np.prod(shape))
+        field = normal[offset:offset + size].reshape(shape)
+        group = groups[offset:offset + size].reshape(shape)
+        offset += size
+        tiles = [(field[r:r + TILE, c:c + TILE], group[r:r + TILE, c:c + TILE])
+                 for r in range(0, shape[0] - TILE + 1, TILE) for c in range(0, shape[1] - TILE + 1, TILE)]
+        values = np.stack([tile - tile.mean() for tile, _ in tiles])
+        members = np.stack([tile_group for _, tile_group in tiles])
+        spectrum = np.fft.rfft2(values, s=(padded, padded))
+        for g in range(GRAIN_GROUPS):
+            mask = (members == g).astype(np.float64)
+            if not mask.any():
+                continue
+            masked = np.fft.rfft2(mask * values, s=(padded, padded))
+            products[g] += np.fft.irfft2(np.conj(masked) * spectrum, s=(padded, padded)).sum(axis=0)
+            counts[g] += np.fft.irfft2(np.conj(np.fft.rfft2(mask, s=(padded, padded))) * window_spectrum,
+                                       s=(padded, padded)).sum(axis=0)
+    pooled = products.sum(axis=0) / np.maximum(counts.sum(axis=0), 1.0)
+    enough = counts[:, 0, 0] >= 16 * TILE * TILE  # a few tiles' worth of pixels
+    return np.stack([_kernel_from_correlation(products[g] / np.maximum(counts[g], 1.0) if enough[g] else pooled)
+                     for g in range(GRAIN_GROUPS)])
+
+
+def _kernel_from_correlation(correlation: np.ndarray) -> np.ndarray:
+    """A zero-phase KERNEL_SIZE^2 kernel, unit energy, whose autocorrelation approximates `correlation`
+    (lags laid circularly on a 2 TILE grid, lag 0 at [0, 0])."""
+    half = TILE // 2
+    lags = np.r_[0:half, -half + 1:0]
+    acf = correlation[np.ix_(lags % correlation.shape[0], lags % correlation.shape[1])]
+    acf = 0.5 * (acf + np.roll(acf[::-1, ::-1], 1, axis=(0, 1)))  # C(τ) and C(-τ) differ by the masks; average
+    acf /= max(acf[0, 0], 1e-12)
+    circular = np.zeros((TILE, TILE))
+    circular[np.ix_(lags % TILE, lags % TILE)] = acf
+    spectrum = np.maximum(np.real(np.fft.fft2(circular)), 0.0)
+    kernel_full = np.fft.fftshift(np.real(np.fft.ifft2(np.sqrt(spectrum))))
+    centre, reach = TILE // 2, KERNEL_SIZE // 2
+    kernel = kernel_full[centre - reach:centre + reach + 1, centre - reach:centre + reach + 1]
+    return kernel / np.sqrt(np.sum(kernel ** 2))

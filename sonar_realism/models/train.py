@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.frames import SonarImage
 from sonar_realism.io import read_frames
 from sonar_realism.models.cdfcvae import (
     CDFCVAE,
@@ -312,24 +313,13 @@ class Trainer:
         if self.rank == 0:
             self.save_state()
 
-    @torch.no_grad()
     def fit_texture(self, real_dir: str | Path, train_recordings: set[str]) -> None:
-        """Fit the speckle statistics (models/speckle.py) of real training frames at their own resolution
-        around the decoder's reconstruction of each (the posterior mean): the texture it cannot express."""
+        """Fit the speckle layer on the training recordings' frames (see `fit_model_texture`)."""
         frames = [frame for source in recording_sources(Path(real_dir)) for frame in read_frames(source)
                   if recording_of(frame, source.name) in train_recordings and frame.intensity.ndim == 2]
         if not frames:
             raise ConfigError(f"{real_dir}: no single-sample training frames to fit the texture on")
-        picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
-        self.model.eval()
-        images, means = [], []
-        for frame in picked:
-            x = torch.from_numpy(to_model_grid(frame, self.cfg.model.grid, self.cfg.normalisation))[None, None]
-            mu, _, skips = self.model.encoder_real(x.to(self.device))
-            mean = self.model.decoder(mu, skips)[0, 0].float().cpu().numpy()
-            means.append(np.clip(from_model_grid(frame, mean), 0.0, 1.0))
-            images.append(normalise(frame, "frame_max"))
-        self.model.texture.set_fit(*fit_speckle(images, means, seed=self.cfg.seed))
+        fit_model_texture(self.model, frames, self.cfg.normalisation, self.device, self.cfg.seed)
 
     # --- persistence
     def _checkpoint_info(self) -> dict[str, Any]:
@@ -409,6 +399,25 @@ class Trainer:
                   title="cDFCVAE loss (perceptual + beta*KL)", xlabel="epoch (cycle 1, then cycle 2)",
                   ylabel="loss", logy=True)
         return record
+
+
+@torch.no_grad()
+def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: str, device: torch.device,
+                      seed: int = 0) -> None:
+    """Fit the model's speckle layer (models/speckle.py) on real frames at their own resolution, around the
+    decoder's reconstruction of each (the posterior mean): the texture the decoder cannot express. Uses
+    TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
+    assert model.texture is not None
+    picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
+    model.eval()
+    images, means = [], []
+    for frame in picked:
+        x = torch.from_numpy(to_model_grid(frame, model.cfg.grid, normalisation))[None, None]
+        mu, _, skips = model.encoder_real(x.to(device))
+        mean = model.decoder(mu, skips)[0, 0].float().cpu().numpy()
+        means.append(np.clip(from_model_grid(frame, mean), 0.0, 1.0))
+        images.append(normalise(frame, "frame_max"))
+    model.texture.set_fit(*fit_speckle(images, means, seed=seed))
 
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,

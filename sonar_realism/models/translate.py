@@ -45,8 +45,8 @@ class Translator:
         # Hashed here, once: the translator node stamps every output with it instead of reading the file again.
         self.checkpoint_sha256 = file_sha256(checkpoint)
         self.normalisation = info.get("normalisation", "frame_max")
-        if device.type == "cuda":
-            self.model = self.model.to(memory_format=torch.channels_last)
+        # channels_last on a CPU too: oneDNN's convolutions run 1.3-5x faster in it than in NCHW here.
+        self.model = self.model.to(memory_format=torch.channels_last)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path = DEFAULT_CHECKPOINT, device: str = "auto") -> Translator:
@@ -89,9 +89,7 @@ class Translator:
                 raise FrameError(f"translate: frame seq {frame.seq} already has {frame.n_samples} samples; "
                                  "pass single [ranges, beams] frames")
         batch = np.stack([to_model_grid(frame, self.grid, self.normalisation) for frame in frames])
-        x = torch.from_numpy(batch).unsqueeze(1).to(self.device)
-        if self.device.type == "cuda":
-            x = x.contiguous(memory_format=torch.channels_last)
+        x = torch.from_numpy(batch).unsqueeze(1).to(self.device).contiguous(memory_format=torch.channels_last)
         with torch.inference_mode(), (torch.autocast("cuda", dtype=torch.bfloat16) if self.device.type == "cuda"
                                       else nullcontext()):
             samples = self.model.sample(x, n, temperature, generator)

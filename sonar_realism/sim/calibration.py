@@ -18,7 +18,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.sim.effects import EFFECTS, Effect, make_effect
 from sonar_realism.sim.texture import SensorTexture
 
-CALIBRATION_VERSION = 1
+CALIBRATION_VERSION = 2  # 2: the texture's grain kernel per level group
 
 
 @dataclass(frozen=True)

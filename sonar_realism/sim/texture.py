@@ -22,7 +22,7 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
-from sonar_realism.models.speckle_fit import KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE, fit_speckle
+from sonar_realism.models.speckle_fit import GRAIN_GROUPS, KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE, fit_speckle
 
 if TYPE_CHECKING:
     from sonar_realism.models.speckle import SpeckleField
@@ -35,16 +35,17 @@ REPLACES = ("speckle",)  # the catalogue effects the fitted texture stands in fo
 
 @dataclass(frozen=True)
 class SensorTexture:
-    """A fitted speckle model (see models/speckle.py for what each table means)."""
+    """A fitted speckle model (see models/speckle.py for what each table means); `kernel` holds one grain
+    kernel per group of level bins."""
 
     level_edges: tuple[float, ...]
     ratio_quantiles: tuple[tuple[float, ...], ...]
-    kernel: tuple[tuple[float, ...], ...]
+    kernel: tuple[tuple[tuple[float, ...], ...], ...]
 
     def validate(self) -> None:
         shapes = {"level_edges": ((LEVEL_BINS - 1,), np.asarray(self.level_edges, dtype=np.float64)),
                   "ratio_quantiles": ((LEVEL_BINS, QUANTILES), np.asarray(self.ratio_quantiles, dtype=np.float64)),
-                  "kernel": ((KERNEL_SIZE, KERNEL_SIZE), np.asarray(self.kernel, dtype=np.float64))}
+                  "kernel": ((GRAIN_GROUPS, KERNEL_SIZE, KERNEL_SIZE), np.asarray(self.kernel, dtype=np.float64))}
         for name, (shape, values) in shapes.items():
             if values.shape != shape or not np.isfinite(values).all():
                 raise ConfigError(f"texture.{name}: expected {shape} finite numbers, got shape {values.shape}")
