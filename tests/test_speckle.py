@@ -87,3 +87,29 @@ def test_output_stride_must_leave_the_decoder_a_level_and_fit_the_skips():
         CDFCVAEConfig(widths=(4, 8, 8), output_stride=3).validate()
     with pytest.raises(ConfigError, match="skips"):
         CDFCVAEConfig(widths=(4, 8, 8), skips=2, output_stride=2).validate()
+
+
+def test_grain_is_fitted_per_level_group():
+    """Dark pixels smeared along range (a water column's per-beam stripes), bright ones white: one kernel for
+    all levels would give both the average; the fit keeps each level's own grain."""
+    rng = np.random.default_rng(4)
+    level = np.where(np.arange(96)[None, :] < 48, 0.15, 0.8) * np.ones((128, 1))
+    frames, means = [], []
+    for _ in range(10):
+        white = rng.gamma(4.0, 0.25, (128 + 5, 96))
+        smeared = np.stack([white[k:k + 128] for k in range(6)]).mean(axis=0)
+        ratio = np.where(level < 0.5, smeared / smeared.mean(), white[:128] / white.mean())
+        image = level * ratio
+        frames.append(np.round(image / image.max() * EXPORT_LEVELS) / EXPORT_LEVELS)  # exported as 8-bit
+        means.append(level / image.max())
+    field = fitted_on(frames, means)
+    samples = field.sample(np.stack(means[:8]).astype(np.float32), torch.Generator().manual_seed(2))
+
+    def along_range(images, columns):
+        values = [np.corrcoef(image[:-1, columns].ravel(), image[1:, columns].ravel())[0, 1] for image in images]
+        return float(np.mean(values))
+
+    dark, bright = slice(0, 48), slice(48, 96)
+    assert along_range(frames, dark) > 0.6 and abs(along_range(frames, bright)) < 0.1
+    assert along_range(samples, dark) == pytest.approx(along_range(frames, dark), abs=0.12)
+    assert along_range(samples, bright) == pytest.approx(along_range(frames, bright), abs=0.12)

@@ -92,7 +92,7 @@ def grain_kernels(normal: np.ndarray, groups: np.ndarray, shapes: list[tuple[int
             counts[g] += np.fft.irfft2(np.conj(np.fft.rfft2(mask, s=(padded, padded))) * window_spectrum,
                                        s=(padded, padded)).sum(axis=0)
     pooled = products.sum(axis=0) / np.maximum(counts.sum(axis=0), 1.0)
-    enough = counts[:, 0, 0] >= 16 * TILE * TILE  # a few tiles' worth of pixels
+    enough = counts[:, 0, 0] >= TILE * TILE  # a tile's worth of pixels: lag correlations to about 0.02
     return np.stack([_kernel_from_correlation(products[g] / np.maximum(counts[g], 1.0) if enough[g] else pooled)
                      for g in range(GRAIN_GROUPS)])
 
