@@ -1,11 +1,13 @@
-"""Measure the translator goals (issue #12) on the held-out real Oculus recording; Markdown table + JSON.
+"""Measure the translator goals (issue #12) on a held-out real recording (by default the Oculus one); Markdown
+table + JSON.
 
     python scripts/translator_goals.py --sim runs/sim_plain/organic --sim runs/sim_plain/constructed \
         --model default=sonar_realism/assets/cdfcvae_default.safetensors \
         --model paper=sonar_realism/assets/cdfcvae_paper.safetensors --out runs/goals
 
 Real frames: the held-out recording (OCULUS_HELD_OUT_RECORDING, never trained on) is the reference; the
-fit recording gives the real-vs-real yardstick of both two-sample tests, measured in the same run. Each
+fit recording gives the real-vs-real yardstick of both two-sample tests, measured in the same run. Another
+sensor: `--held-out DIR --yardstick DIR` (e.g. the ARIS split of scripts/aris_split.py). Each
 two-sample test is repeated over `--seeds` (patch positions, classifier init) and averaged: on 89 frames one
 run moves by +-0.15. Simulated inputs are read from folders written by `sonar-realism simulate` (object masks
 from their masks/ folder). Every method is scored on the same inputs:
@@ -63,6 +65,11 @@ def real_frames(recording: str, every: int = 1) -> list[SonarImage]:
     return [frame for path in files for frame in read_frames(path)]
 
 
+def folder_frames(path: str, limit: int) -> list[SonarImage]:
+    frames = list(read_frames(path))
+    return [frames[i] for i in np.linspace(0, len(frames) - 1, min(limit, len(frames))).astype(int)]
+
+
 def sim_inputs(folders: list[str], per_folder: int) -> tuple[list[SonarImage], list[np.ndarray | None]]:
     frames, masks = [], []
     for folder in folders:
@@ -99,14 +106,20 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--out", required=True)
     parser.add_argument("--resume", action="store_true", help="keep the methods already in OUT/goals.json")
+    parser.add_argument("--held-out", help="real frames no translator trained on (any read_frames input; default: "
+                                           "the held-out Oculus recording)")
+    parser.add_argument("--yardstick", help="real frames of the fit recording(s), for the real-vs-real yardstick "
+                                            "(default: the fit Oculus recording, every 3rd frame)")
+    parser.add_argument("--max-real", type=int, default=300, help="at most this many frames of --held-out and "
+                                                                  "--yardstick each, evenly spaced")
     args = parser.parse_args()
     torch.set_num_threads(max(1, torch.get_num_threads()))
     started = time.monotonic()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    held = real_frames(OCULUS_HELD_OUT_RECORDING)
-    fit = real_frames(OCULUS_FIT_RECORDING, every=3)
+    held = folder_frames(args.held_out, args.max_real) if args.held_out else real_frames(OCULUS_HELD_OUT_RECORDING)
+    fit = folder_frames(args.yardstick, args.max_real) if args.yardstick else real_frames(OCULUS_FIT_RECORDING, 3)
     held_native = [normalise(f, "frame_max") for f in held]
     held_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in held])
     inputs, masks = sim_inputs(args.sim, args.per_folder)
