@@ -502,11 +502,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         return (pattern, *holdout(rest, pattern))
 
     stand_ins = []
-    # every selected sensor effect's stand-in pattern at once; one is refitted only if an earlier one was dropped.
-    # Geometry and scene terms are not checked: how brightness falls with range is what a mounting does, so a
-    # range gain is one of its consequences, not a rival explanation (docs/diagnosis.md, Limits)
-    checked = [e for e in chosen if not isinstance(e, SceneTerm)]
-    patterns = dict(zip([e.name for e in checked], parallel_map(pattern_in_place_of, checked, c.workers),
+    # every selected effect's stand-in pattern at once; one is refitted only if an earlier one was dropped
+    patterns = dict(zip([e.name for e in chosen], parallel_map(pattern_in_place_of, chosen, c.workers),
                         strict=True)) if c.gain_check else {}
     changed = False
     for index, name in enumerate(list(patterns)):

@@ -16,7 +16,6 @@ the real setting; each term's `start()` turns it into the term's starting point 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
@@ -34,18 +33,23 @@ SCENE_TERMS: dict[str, type[SceneTerm]] = {}
 
 @dataclass(frozen=True)
 class SceneStart:
-    """The real setting as the calibration describes it, in shares of the range window (real frames exported
-    without geometry are stretched over their own window, so metres would not line up): `onset_fraction` where
-    the seabed starts (from the mounting: height / sin(tilt + half the vertical aperture)); `patch_contrast`
-    the seabed's patchiness (rms of the log local mean level) and `patch_scale_fraction` its correlation length."""
+    """The real setting as the calibration describes it, lengths in shares of the range window's far end (real
+    frames exported without geometry are stretched over their own window, so metres would not line up): the
+    mounting (`height_fraction`, `tilt_deg`, `vertical_fov_deg`), the seabed's patchiness (`patch_contrast`: rms
+    of the log local mean level) and its correlation length (`patch_scale_fraction`)."""
 
-    onset_fraction: float
+    height_fraction: float
+    tilt_deg: float
+    vertical_fov_deg: float
     patch_contrast: float
     patch_scale_fraction: float
 
     def validate(self) -> None:
-        if not 0.0 <= self.onset_fraction < 1.0:
-            raise ConfigError(f"scene start: onset_fraction {self.onset_fraction} outside [0, 1)")
+        if not 1e-3 <= self.height_fraction <= 1.0:
+            raise ConfigError(f"scene start: height_fraction {self.height_fraction} outside [0.001, 1]")
+        if not -10.0 <= self.tilt_deg <= 89.0 or not 0.5 <= self.vertical_fov_deg <= 90.0:
+            raise ConfigError(f"scene start: tilt_deg {self.tilt_deg} or vertical_fov_deg {self.vertical_fov_deg} "
+                              "out of range")
         if not 0.0 <= self.patch_contrast <= 3.0:
             raise ConfigError(f"scene start: patch_contrast {self.patch_contrast} outside [0, 3]")
         if not 0.0 < self.patch_scale_fraction <= 1.0:
@@ -54,12 +58,10 @@ class SceneStart:
     @classmethod
     def from_calibration(cls, calibration: Calibration) -> SceneStart:
         """The calibration's mounting, seabed patchiness and most frequent range window."""
-        mode = calibration.grid.modes[0]
-        window = mode.max_range_m - mode.min_range_m
+        window = calibration.grid.modes[0].max_range_m
         m = calibration.mounting
-        lower_edge = math.radians(m.tilt_deg.value + m.vertical_fov_deg / 2)
-        onset_m = m.height_m.value / max(math.sin(lower_edge), 1e-3)
-        start = cls(onset_fraction=float(np.clip((onset_m - mode.min_range_m) / window, 0.0, 0.9)),
+        start = cls(height_fraction=float(np.clip(m.height_m.value / window, 1e-3, 1.0)),
+                    tilt_deg=float(m.tilt_deg.value), vertical_fov_deg=float(m.vertical_fov_deg),
                     patch_contrast=float(np.clip(calibration.seabed.patch_contrast.value, 0.0, 3.0)),
                     patch_scale_fraction=float(np.clip(calibration.seabed.patch_scale_m.value / window, 1e-3, 1.0)))
         start.validate()
