@@ -52,8 +52,17 @@ def test_mounting_moves_the_onset_by_whole_rows():
     # rows are moved, never interpolated: every output row is one of the frame's rows (the grain stays the sim's)
     rows = {r.tobytes() for r in images[0]}
     assert all(r.tobytes() in rows for r in moved[0])
-    identity = dataclasses.replace(term, calibrated_onset_fraction=sim_onset)
+    identity = dataclasses.replace(term, calibrated_onset_fraction=sim_onset)  # and no skirt (at its bound)
     np.testing.assert_array_equal(corrected_images(sim, [identity], 0), corrected_images(sim, [], 0))
+    # the vertical pattern's skirt lights the black rows between the nadir and the onset, rising towards it
+    skirted = dataclasses.replace(identity, skirt_db=-12.0, height_fraction=0.1)
+    lit = corrected_images(sim, [skirted], 0, "max")
+    rows = lit.mean(axis=(0, 2))
+    n = len(rows)
+    nadir, onset = int(0.1 * (n - 1)) + 1, int(sim_onset * (n - 1))
+    assert np.array_equal(lit[:, :nadir], images[:, :nadir])
+    assert np.all(rows[nadir:onset] > images.mean(axis=(0, 2))[nadir:onset])
+    assert rows[onset - 3] > 2 * rows[nadir + 1]
 
 
 def test_seabed_patches_keep_the_mean_power_and_add_contrast():
