@@ -16,6 +16,7 @@ the real setting; each term's `start()` turns it into the term's starting point 
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
@@ -83,10 +84,10 @@ class SceneTerm(Effect):
         SCENE_TERMS[cls.name] = cls
 
     @classmethod
+    @abc.abstractmethod
     def start(cls, sim_images: np.ndarray, scene: SceneStart) -> SceneTerm:
         """The term's starting point: fields measured on the sim images ([n, R, B], max-normalised), searched
         fields where `scene` puts the real setting."""
-        raise NotImplementedError
 
 
 def kind_of(effect: Effect) -> Kind:
