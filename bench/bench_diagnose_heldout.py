@@ -14,6 +14,8 @@ with `--limits`, the detection limit of a few weak effects (smallest strength fo
     OMP_NUM_THREADS=1 nice -n 10 python bench/bench_diagnose_heldout.py --quick --out heldout.json
     OMP_NUM_THREADS=1 nice -n 10 python bench/bench_diagnose_heldout.py --settings default:40:inside+wide,organic:40
     OMP_NUM_THREADS=1 nice -n 10 python bench/bench_diagnose_heldout.py --limits --quick
+    OMP_NUM_THREADS=1 nice -n 10 python bench/bench_diagnose_heldout.py --quick --settings calibrated:24 \
+        --calibration oculus   # geometry and scene terms in play: are sensor effects blamed on them?
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 
 from sonar_realism.diagnose import DiagnoseConfig, diagnose
 from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, UNCATALOGUED, Place, apply_held_out
+from sonar_realism.diagnose.scene_terms import SceneStart
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_to_grid
 from sonar_realism.sim import SensorConfig, simulate
@@ -72,11 +75,13 @@ class Read:
     ranked: list[tuple[str, float]]  # (name, gap_after alone), in the diagnosis' order
     residual_places: list[dict[str, Any]]  # the residual's entries that carry a range_m or bearing_deg interval
     ambiguous: Any  # the optional `ambiguous` key, None when absent
+    setup: list[str]  # selected geometry or scene terms (`selected_effects[i].kind` other than "effect")
 
 
 def read_diagnosis(result: Any) -> Read:
     """Everything this bench learns from a diagnosis, read from diagnosis.json's DESIGN contract keys (plus the
-    optional `ambiguous`): the result object is only asked for its JSON form, whatever its Python type."""
+    optional `ambiguous` and `selected_effects[i].kind`): the result object is only asked for its JSON form,
+    whatever its Python type."""
     payload = result if isinstance(result, dict) else result.to_json()
     residual = payload.get("residual") or {}
     # places sit in `residual` itself or under `residual.where`; profile bins name their interval `span`
@@ -96,7 +101,9 @@ def read_diagnosis(result: Any) -> Read:
     return Read(gap_before=float(payload["gap_before"]), gap_after_selected=float(payload["gap_after_selected"]),
                 selected=[str(s) for s in payload["selected"]],
                 ranked=[(str(r["name"]), float(r["gap_after"])) for r in payload["ranked_effects"]],
-                residual_places=places, ambiguous=payload.get("ambiguous"))
+                residual_places=places, ambiguous=payload.get("ambiguous"),
+                setup=[str(e["name"]) for e in payload.get("selected_effects") or []
+                       if isinstance(e, dict) and e.get("kind", "effect") != "effect"])
 
 
 # --- frames ----------------------------------------------------------------------------------------------------------
@@ -134,11 +141,12 @@ def in_place(read: Read, place: Place) -> bool:
 
 
 def run_case(sim: list[SonarImage], real_source: list[SonarImage], implementation: str | None, mode: str,
-             params: dict[str, float], config: DiagnoseConfig, seed: int) -> dict[str, Any]:
+             params: dict[str, float], config: DiagnoseConfig, seed: int, scene: SceneStart | None = None,
+             ) -> dict[str, Any]:
     entry = IMPLEMENTATIONS[implementation] if implementation else None
     real = apply_held_out(real_source, implementation, params, seed) if implementation else real_source
     started = time.perf_counter()
-    read = read_diagnosis(diagnose(sim, real, config))
+    read = read_diagnosis(diagnose(sim, real, config, scene=scene))
     named = top1(read)
     family = entry.family if entry else ""
     row: dict[str, Any] = {
@@ -148,7 +156,7 @@ def run_case(sim: list[SonarImage], real_source: list[SonarImage], implementatio
         "gap_before": read.gap_before, "gap_after_selected": read.gap_after_selected,
         "gap_closed": 1.0 - read.gap_after_selected / read.gap_before if read.gap_before > 0 else 0.0,
         "ambiguous": bool(read.ambiguous) if read.ambiguous is not None else None,
-        "seconds": time.perf_counter() - started}
+        "blamed_on_setup": read.setup, "seconds": time.perf_counter() - started}
     if entry and family != UNCATALOGUED:
         row["top1_correct"] = named == family
     if entry and family == UNCATALOGUED:
@@ -185,21 +193,22 @@ def implementations(first_only: bool, only: tuple[str, ...] = ()) -> list[str]:
 
 def accuracy(settings: str, config: DiagnoseConfig, log: Callable[[str], None],
              keep: Callable[[list[dict[str, Any]]], None] = lambda rows: None, only: tuple[str, ...] = (),
-             ) -> list[dict[str, Any]]:
+             scene: SceneStart | None = None) -> list[dict[str, Any]]:
     """Every case of every setting; `keep` sees the rows so far after each case (a long run's partial results)."""
     rows: list[dict[str, Any]] = []
-    for scene, n, modes, first_only in parse_settings(settings):
-        sim = clean_frames(scene, n, SIM_SEED)
-        real_source = clean_frames(scene, n, REAL_SEED)
-        draws = np.random.default_rng([2026, n, len(scene)])
+    for scene_name, n, modes, first_only in parse_settings(settings):
+        sim = clean_frames(scene_name, n, SIM_SEED)
+        real_source = clean_frames(scene_name, n, REAL_SEED)
+        draws = np.random.default_rng([2026, n, len(scene_name)])
         cases: list[tuple[str | None, str]] = [(None, "null")]
         cases += [(name, mode) for mode in modes for name in implementations(first_only, only)]
         for index, (name, mode) in enumerate(cases):
             params = IMPLEMENTATIONS[name].draw(mode, draws) if name else {}  # type: ignore[arg-type]
-            row = {"scene": scene, "frames": n, **run_case(sim, real_source, name, mode, params, config, index)}
+            row = {"scene": scene_name, "frames": n,
+                   **run_case(sim, real_source, name, mode, params, config, index, scene)}
             rows.append(row)
             keep(rows)
-            log(f"{scene}:{n} {row['implementation']:42s} {mode:6s} top1={row['top1'] or '-':18s} "
+            log(f"{scene_name}:{n} {row['implementation']:42s} {mode:6s} top1={row['top1'] or '-':18s} "
                 f"selected={','.join(row['selected']) or '-':34s} closed={100 * row['gap_closed']:6.1f}% "
                 f"{row['seconds']:.0f}s")
     return rows
@@ -277,6 +286,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "ambiguous_reported": (sum(bool(r["ambiguous"]) for r in rows) if ambiguous_known
                                    else "the diagnosis reports no `ambiguous` key"),
             "null_selected": {f"{r['scene']}:{r['frames']}": r["selected"] for r in rows if r["family"] == "null"},
+            "setup_blamed": sum(bool(r.get("blamed_on_setup")) for r in rows),
             "per_family": group("family"), "per_implementation": group("implementation")}
 
 
@@ -314,6 +324,7 @@ def print_accuracy(summary: dict[str, Any]) -> None:
           f"{summary['uncatalogued_cases']} | all |")
     print(f"| cases reported ambiguous | {summary['ambiguous_reported']} | - |")
     print(f"| no-effect runs: selected | {summary['null_selected']} | nothing |")
+    print(f"| cases with a geometry or scene term selected (with --calibration) | {summary['setup_blamed']} | - |")
     for title, key in (("family", "per_family"), ("implementation", "per_implementation")):
         print(f"\n| {title} | cases | top-1 right | blamed (un-catalogued) | residual in place | gap closed (mean) "
               f"| ambiguous | named (top-1) |\n|---|---|---|---|---|---|---|---|")
@@ -353,6 +364,8 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3, help="repeats per sweep value (--limits)")
     parser.add_argument("--limit-frames", type=int, default=24, help="frames per set in the sweeps (--limits)")
     parser.add_argument("--out", help="write the rows and the summary here as JSON")
+    parser.add_argument("--calibration", help="geometry and scene terms in play, started from this CALIB.json (or "
+                                              "oculus): every row then says which were selected (blamed_on_setup)")
     args = parser.parse_args()
     config = QUICK_CONFIG if args.quick else DiagnoseConfig()
     started = time.perf_counter()
@@ -371,7 +384,9 @@ def main() -> int:
         print_limits(summary, args.repeats)
     else:
         only = tuple(filter(None, (s.strip() for s in args.only.split(","))))
-        rows = accuracy(args.settings or (QUICK_SETTINGS if args.quick else FULL_SETTINGS), config, log, keep, only)
+        scene = SceneStart.from_calibration(load_calibration(args.calibration)) if args.calibration else None
+        rows = accuracy(args.settings or (QUICK_SETTINGS if args.quick else FULL_SETTINGS), config, log, keep, only,
+                        scene)
         summary = summarise(rows)
         print_accuracy(summary)
     run_info = {"command": " ".join(sys.argv), "seconds": time.perf_counter() - started, "grid": list(GRID),

@@ -18,10 +18,12 @@ from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.diagnose.config import DiagnoseConfig
 from sonar_realism.diagnose.diagnosis import diagnose
 from sonar_realism.diagnose.report import write_report
+from sonar_realism.diagnose.scene_terms import SceneStart
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_to_grid
 from sonar_realism.io import read_frames
+from sonar_realism.sim.calibration import load_calibration
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="'max' divides every frame by its maximum (for real sets exported that way)")
     parser.add_argument("--effects", default="", help="candidate effects, comma separated (default: the catalogue)")
     parser.add_argument("--max-frames", type=int, default=500, help="use at most this many frames per set")
+    parser.add_argument("--calibration", help="CALIB.json of the real sensor (or a shipped name: oculus): the sim's "
+                                              "geometry and scene (mounting, seabed patchiness) become candidates "
+                                              "beside the sensor effects, starting where the calibration puts them")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", help="JSON file with DiagnoseConfig fields (overrides the options above)")
 
@@ -50,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, json.JSONDecodeError) as exc:
             raise ConfigError(f"--config {args.config}: {exc}") from exc
     config = from_dict(DiagnoseConfig, settings, where="diagnose config")
+    scene = SceneStart.from_calibration(load_calibration(args.calibration)) if args.calibration else None
     sim = load_set(args.sim, args.max_frames)
     real = load_set(args.real, args.max_frames)
     if args.grid or args.resample:
@@ -61,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
             bar.update()
             bar.write(message, file=sys.stderr)
 
-        diagnosis = diagnose(sim, real, config, progress=progress)
+        diagnosis = diagnose(sim, real, config, progress=progress, scene=scene)
     report = write_report(diagnosis, args.out)
     d = diagnosis
     ambiguous = "".join(f"; ambiguous: {' or '.join(a.effect for a in group.effects)}" for group in d.ambiguous)

@@ -39,6 +39,7 @@ from sonar_realism.diagnose.result import (
     Verdict,
     Where,
 )
+from sonar_realism.diagnose.scene_terms import SceneStart, kind_of, scene_term_starts
 from sonar_realism.diagnose.where import (
     band_names,
     concentration,
@@ -100,8 +101,10 @@ def check_sets(sim: Sequence[SonarImage], real: Sequence[SonarImage]) -> None:
 
 
 def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: DiagnoseConfig | None = None,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """The diagnosis of `sim` against `real` (default config: `DiagnoseConfig()`)."""
+             progress: Callable[[str], None] | None = None, scene: SceneStart | None = None) -> Diagnosis:
+    """The diagnosis of `sim` against `real` (default config: `DiagnoseConfig()`). With `scene` (what a
+    calibration says about the real setting: `SceneStart.from_calibration`), the geometry and scene terms are
+    candidates beside the sensor effects, starting from there."""
     started = time.perf_counter()
     say = progress or (lambda message: None)
     config = config or DiagnoseConfig()
@@ -154,8 +157,10 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         reference = eval_frames[0]
     bearings_deg = np.degrees(reference.azimuths_rad)
     real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
+    terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
+    names = [*names, *terms]
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
-                               gap_before, reference.ranges_m, bearings_deg)
+                               gap_before, reference.ranges_m, bearings_deg, terms)
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)
@@ -230,6 +235,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         normalize=config.normalize,
         bootstrap_resamples=config.bootstrap,
         seconds=time.perf_counter() - started,
+        scene_start=scene,
         examples=Examples(raw_eval[0], after_images[0], real_hold[0]))
 
 
@@ -249,7 +255,7 @@ def _selected_effects(selection: Selection, gap_before: float) -> tuple[Selected
             chosen = next(a for a in step.alternatives if a.effect == step.effect)
             added[step.effect] = ((previous - step.gap) / gap_before if gap_before > 0 else 0.0, chosen.frequency)
         previous = step.gap
-    return tuple(SelectedEffect(e.name, e.params(), *added.get(e.name, (0.0, math.nan)))
+    return tuple(SelectedEffect(e.name, e.params(), *added.get(e.name, (0.0, math.nan)), kind_of(e))
                  for e in selection.effects)
 
 

@@ -106,13 +106,18 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
     families = Table(["family", "before", "after selected"],
                      [[family, f"{before:.3g}", f"{d.family_gaps_after_selected[family]:.3g}"]
                       for family, before in d.family_gaps_before.items()])
-    ranking = Table(["rank", "effect", "held-out gap after", "gap closed", "ranked first in resamples",
+    ranking = Table(["rank", "candidate", "kind", "held-out gap after", "gap closed", "ranked first in resamples",
                      "fitted parameters"],
-                    [[i, r.name, f"{r.gap_after:.3g}", f"{100 * r.gap_closed:.0f}%", f"{100 * r.top_frequency:.0f}%",
+                    [[i, r.name, r.kind, f"{r.gap_after:.3g}", f"{100 * r.gap_closed:.0f}%",
+                      f"{100 * r.top_frequency:.0f}%",
                       _params(r.params)] for i, r in enumerate(d.ranked_effects, 1)])
-    selected = Table(["selected effect", "share of the gap before", "chosen in resamples", "fitted parameters"],
-                     [[e.name, f"{100 * e.share:.0f}%", f"{100 * e.stability:.0f}%", _params(e.params)]
+    selected = Table(["selected", "kind", "share of the gap before", "chosen in resamples", "fitted parameters"],
+                     [[e.name, e.kind, f"{100 * e.share:.0f}%", f"{100 * e.stability:.0f}%", _params(e.params)]
                       for e in d.selected_effects])
+    setup = [Text("The sim's set-up, not its sensor: " + "; ".join(
+        f"**{e.name}** ({e.kind}) closes {100 * e.share:.0f}% of the gap before" for e in d.blamed_on_setup())
+        + ". Change the simulation's mounting or seabed (e.g. simulate from the calibration) before judging the "
+        "sensor effects.")] if d.blamed_on_setup() else []
     ambiguous = [Text(f"Step {group.step} is ambiguous: "
                       + "; ".join(f"**{a.effect}** (would close {100 * share:.0f}% of the gap before, chosen in "
                                   f"{100 * a.frequency:.0f}% of {d.bootstrap_resamples} resamples)"
@@ -157,7 +162,7 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                  "effect the later ones make redundant, and an effect that does no better than a fixed gain "
                  "pattern is not blamed. \"Chosen in resamples\": how often the step's pick was the best candidate "
                  f"over {d.bootstrap_resamples} bootstrap resamples of the held-out frames."),
-            selected, *ambiguous, steps, Text(f"Selection stopped: {d.selection_stopped}."), *stand_ins,
+            selected, *setup, *ambiguous, steps, Text(f"Selection stopped: {d.selection_stopped}."), *stand_ins,
             Figure(figures["curve"], "held-out gap along the selection", width_percent=70)]),
         Section("Residual: what no catalogued effect explains", [
             residual, Text("\n".join(_where_lines(res.where))), *residual_figures]),

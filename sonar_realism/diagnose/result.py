@@ -16,6 +16,7 @@ from typing import Any, Literal
 import numpy as np
 
 from sonar_realism.config import from_dict
+from sonar_realism.diagnose.scene_terms import Kind, SceneStart
 from sonar_realism.errors import ConfigError
 
 Verdict = Literal["selected", "ambiguous", "residual_only", "not_enough_frames"]
@@ -86,8 +87,9 @@ class GapMaps:
 
 @dataclass(frozen=True)
 class RankedEffect:
-    """An effect fitted alone: its parameters, its gap on the fit split and on held-out frames, and how often it
-    ranked first over bootstrap resamples of the held-out frames (`top_frequency`)."""
+    """A candidate fitted alone: its parameters, its gap on the fit split and on held-out frames, and how often
+    it ranked first over bootstrap resamples of the held-out frames (`top_frequency`). `kind`: "effect" (a sensor
+    effect of the catalogue), "geometry" or "scene" (a term of the sim's set-up: diagnose/scene_terms)."""
 
     name: str
     params: dict[str, Any]
@@ -95,6 +97,7 @@ class RankedEffect:
     fit_gap: float
     gap_closed: float
     top_frequency: float
+    kind: Kind = "effect"
 
 
 @dataclass(frozen=True)
@@ -166,12 +169,14 @@ class StandIn:
 @dataclass(frozen=True)
 class SelectedEffect:
     """A selected effect as finally fitted: `share` of the gap before it closed when it was added, `stability`
-    how often it was the best candidate of its step over bootstrap resamples of the held-out frames."""
+    how often it was the best candidate of its step over bootstrap resamples of the held-out frames; `kind` as in
+    RankedEffect."""
 
     name: str
     params: dict[str, Any]
     share: float
     stability: float
+    kind: Kind = "effect"
 
 
 @dataclass(frozen=True)
@@ -238,7 +243,8 @@ class Examples:
 class Diagnosis:
     """The whole diagnosis. `verdict`: "selected" (confident names), "ambiguous" (at least one step could not
     tell its candidates apart: see `ambiguous`), "residual_only" (nothing selected) or "not_enough_frames" (too
-    few held-out frames for the bootstrap to separate anything: no ranking)."""
+    few held-out frames for the bootstrap to separate anything: no ranking). `scene_start`: where the calibration
+    put the real setting, when geometry and scene terms were candidates (None: sensor effects only)."""
 
     verdict: Verdict
     gap_measure: str
@@ -267,7 +273,12 @@ class Diagnosis:
     normalize: str
     bootstrap_resamples: int
     seconds: float
+    scene_start: SceneStart | None = None
     examples: Examples | None = dataclasses.field(default=None, compare=False)
+
+    def blamed_on_setup(self) -> tuple[SelectedEffect, ...]:
+        """The selected geometry and scene terms: the part of the gap that is the sim's set-up, not its sensor."""
+        return tuple(s for s in self.selected_effects if s.kind != "effect")
 
     @property
     def top1(self) -> str:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar, TypeVar
 
@@ -29,10 +29,11 @@ from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
 from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import Alternative, GainPatternFit, GainSpot, RankedEffect, StandIn, Step
+from sonar_realism.diagnose.scene_terms import SceneTerm, apply_scene_terms, kind_of
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import EFFECTS, Effect, apply_effects, make_effect
+from sonar_realism.sim.effects import Effect, apply_effects, make_effect
 
 # A gain pattern's smooth part has this many degrees of freedom per axis; channels that stand out from it by more
 # than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB) keep their own gain: a stripe is one beam wide.
@@ -86,15 +87,19 @@ class Fit:
 
 def corrected_images(frames: Sequence[SonarImage], effects: Sequence[Effect], seed: int,
                      normalize: str = "none", gain: GainPattern | None = None) -> np.ndarray:
-    """Apply `gain` then `effects` to every frame (one generator seeded with `seed`) and stack as float32
-    [n, R, B] in [0, 1]."""
+    """Apply `gain`, the geometry and scene terms among `effects`, then its sensor effects to every frame (one
+    generator seeded with `seed`) and stack as float32 [n, R, B] in [0, 1]."""
     rng = np.random.default_rng(seed)
     factor = gain.factor(frames[0].n_ranges, frames[0].n_beams) if gain is not None and frames else None
+    terms = [e for e in effects if isinstance(e, SceneTerm)]
+    sensor = [e for e in effects if not isinstance(e, SceneTerm)]
     out = []
     for frame in frames:
         if factor is not None:
             frame = frame.replace(intensity=frame.normalized() * factor, intensity_scale=1.0)
-        corrected = apply_effects(frame, effects, rng) if effects else frame
+        if terms:
+            frame = apply_scene_terms(frame, terms, rng)
+        corrected = apply_effects(frame, sensor, rng) if sensor else frame
         out.append(normalize_image(corrected.normalized(), normalize))
     return np.stack(out)
 
@@ -112,8 +117,8 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
                statistics: StatisticsConfig | None = None, normalize: str = "none",
                alternatives: Sequence[Effect] = ()) -> Fit:
     """Parameters of effect `name` that, applied to `frames` after/with the `base` effects, bring their
-    statistics closest to `target`. The search starts from `start` (default: the catalogue's values) or from
-    whichever of `alternatives` fits better there."""
+    statistics closest to `target`. The search starts from `start` (default: the catalogue's values; a geometry
+    or scene term always comes with its start) or from whichever of `alternatives` fits better there."""
     statistics = statistics or StatisticsConfig()
     search = search or SearchConfig()
 
@@ -121,8 +126,8 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
         return gap(frame_statistics(corrected_images(frames, [*base, effect], search.seed, normalize), statistics),
                    target, scale)
 
-    best, score, evaluations = coordinate_search(start if start is not None else make_effect(name),
-                                                 EFFECTS[name].PARAM_BOUNDS, objective, search, alternatives)
+    start = start if start is not None else make_effect(name)
+    best, score, evaluations = coordinate_search(start, type(start).PARAM_BOUNDS, objective, search, alternatives)
     return Fit(best, score, evaluations)
 
 
@@ -292,7 +297,8 @@ class SelectionProblem:
     the mean images of two halves of the real fit frames, for the gain pattern), the held-out judge
     `holdout(effects, gain)` -> (gap, statistics or None), the held-out real statistics `target` and the raw sim's
     `stats_before` (None: no significance test, no bootstrap frequencies), and the gap before. `ranges_m` /
-    `bearings_deg` place a gain pattern."""
+    `bearings_deg` place a gain pattern. `scene_terms`: the geometry and scene candidates' starting points (empty:
+    sensor effects only)."""
 
     fit_frames: Sequence[SonarImage]
     fit_target: Stats
@@ -304,6 +310,11 @@ class SelectionProblem:
     gap_before: float
     ranges_m: np.ndarray
     bearings_deg: np.ndarray
+    scene_terms: Mapping[str, SceneTerm] = dataclasses.field(default_factory=dict)
+
+    def start(self, name: str) -> Effect:
+        """Where a candidate's search starts: a geometry or scene term's start, else the catalogue's default."""
+        return self.scene_terms[name] if name in self.scene_terms else make_effect(name)
 
 
 @dataclass(frozen=True)
@@ -334,8 +345,8 @@ def rank_effects(names: Sequence[str], problem: SelectionProblem, config: Diagno
     """Every effect fitted alone, then judged on the held-out split; best (smallest gap) first, each with how
     often it ranks first over bootstrap resamples of the held-out frames."""
     def solo(name: str) -> tuple[str, Fit, float, Stats | None]:
-        fit = fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, search=config.search,
-                         statistics=config.statistics, normalize=config.normalize)
+        fit = fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, start=problem.start(name),
+                         search=config.search, statistics=config.statistics, normalize=config.normalize)
         return (name, fit, *problem.holdout([fit.effect], None))
 
     fitted = parallel_map(solo, names, config.workers)
@@ -344,7 +355,8 @@ def rank_effects(names: Sequence[str], problem: SelectionProblem, config: Diagno
             progress(f"{name}: held-out gap {after:.4g} ({fit.evaluations} fits)")
     frequency = _frequencies([stats for *_, stats in fitted], problem, config, seed=config.seed + 500)
     solos = [Solo(RankedEffect(name, fit.effect.params(), after, fit.fit_gap,
-                               gap_closed(problem.gap_before, after), float(freq)), fit.effect, stats)
+                               gap_closed(problem.gap_before, after), float(freq), kind_of(fit.effect)),
+                  fit.effect, stats)
              for (name, fit, after, stats), freq in zip(fitted, frequency, strict=True)]
     return sorted(solos, key=lambda solo: solo.ranked.gap_after)
 
@@ -391,11 +403,12 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     stopped = f"reached max_effects={c.max_effects}"
 
     def refit(name: str, base: Sequence[Effect], start: Effect) -> Fit:
-        # the catalogue's default is the other start: a fit made while another effect was missing may sit in a
-        # compromise (a gamma curve bent to mimic speckle) from which one coordinate round does not come back
+        # the catalogue's default (a term's calibrated start) is the other start: a fit made while another effect
+        # was missing may sit in a compromise (a gamma curve bent to mimic speckle) from which one coordinate round
+        # does not come back
         return fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, base=base, start=start,
                           search=one_round, statistics=c.statistics, normalize=c.normalize,
-                          alternatives=[make_effect(name)])
+                          alternatives=[problem.start(name)])
 
     def refit_each(effects: Sequence[Effect], around: Sequence[Effect] = ()) -> list[Effect]:
         effects = list(effects)
