@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,14 +67,8 @@ class SonarImage:
         if intensity.dtype.kind == "f" and not np.isfinite(intensity).all():
             raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
 
-        ranges = _as_axis(self.ranges_m, "ranges_m", intensity.shape[-2])
-        azimuths = _as_axis(self.azimuths_rad, "azimuths_rad", intensity.shape[-1])
-        if ranges[0] < 0:
-            raise FrameError(f"ranges_m: negative range {ranges[0]}")
-        if np.abs(azimuths).max() > math.pi:
-            raise FrameError("azimuths_rad: bearings beyond ±180° (are they in degrees?)")
-        object.__setattr__(self, "ranges_m", ranges)
-        object.__setattr__(self, "azimuths_rad", azimuths)
+        object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", intensity.shape[-2]))
+        object.__setattr__(self, "azimuths_rad", _axis(self.azimuths_rad, "azimuths_rad", intensity.shape[-1]))
 
         if not isinstance(self.stamp_ns, int | np.integer) or self.stamp_ns < 0:
             raise FrameError(f"stamp_ns: expected a non-negative int, got {self.stamp_ns!r}")
@@ -136,15 +131,48 @@ class SonarImage:
                 and np.allclose(self.azimuths_rad, other.azimuths_rad, atol=atol))
 
 
-def _as_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+def checked_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+    """`values` checked as a frame's `name` axis ("ranges_m" or "azimuths_rad"), as a read-only float64 copy that
+    SonarImage then takes without checking it again; FrameError if it is not a valid axis.
+
+    For geometry that repeats frame after frame (every sonar stream): the wire decoder checks each distinct axis
+    once and hands the same array to every frame. The copy is this module's own, so no caller can write to it.
+    """
+    axis = np.array(_check_axis(values, name, expected_len))
+    axis.flags.writeable = False
+    with _CHECKED_AXES_LOCK:
+        if len(_CHECKED_AXES) >= _MAX_CHECKED_AXES:
+            del _CHECKED_AXES[next(iter(_CHECKED_AXES))]  # the oldest; it is checked again if it comes back
+        # Keyed by identity and kept alive here, so the id cannot be reused by another array while listed.
+        _CHECKED_AXES[(id(axis), name)] = axis
+    return axis
+
+
+_CHECKED_AXES: dict[tuple[int, str], np.ndarray] = {}
+_CHECKED_AXES_LOCK = threading.Lock()
+_MAX_CHECKED_AXES = 256
+
+
+def _axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+    checked = _CHECKED_AXES.get((id(values), name))
+    if checked is values and checked.shape[0] == expected_len:
+        return checked
+    return _check_axis(values, name, expected_len)
+
+
+def _check_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
     axis = np.asarray(values, dtype=np.float64)
     if axis.ndim != 1 or axis.shape[0] != expected_len:
         raise FrameError(f"{name}: expected {expected_len} values (one per "
                          f"{'range bin' if name == 'ranges_m' else 'beam'}), got shape {axis.shape}")
     if not np.isfinite(axis).all():
         raise FrameError(f"{name}: NaN or inf")
-    if expected_len > 1 and not (np.diff(axis) > 0).all():
+    if expected_len > 1 and not (axis[1:] > axis[:-1]).all():
         raise FrameError(f"{name}: must be strictly increasing")
+    if name == "ranges_m" and axis[0] < 0:
+        raise FrameError(f"ranges_m: negative range {axis[0]}")
+    if name == "azimuths_rad" and max(-axis[0], axis[-1]) > math.pi:  # increasing: the ends are the extremes
+        raise FrameError("azimuths_rad: bearings beyond ±180° (are they in degrees?)")
     return axis
 
 

@@ -11,7 +11,6 @@ This module does not import zmq: it works on anything that exposes the buffer pr
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -22,7 +21,7 @@ import msgpack
 import numpy as np
 
 from sonar_realism.errors import FrameError, WireError
-from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage
+from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, checked_axis
 
 WIRE_VERSION = 1
 FRAME_TYPE = "frame"
@@ -68,8 +67,8 @@ def encode_frame(frame: SonarImage, topic: str, provenance: dict | None = None) 
         "dtype": intensity.dtype.str,
         "shape": list(intensity.shape),
         "layout": LAYOUT,
-        "ranges_m": _encode_axis(frame.ranges_m),
-        "azimuths_rad": _encode_axis(frame.azimuths_rad),
+        "ranges_m": _encode_axis(frame.ranges_m, "ranges_m"),
+        "azimuths_rad": _encode_axis(frame.azimuths_rad, "azimuths_rad"),
         "intensity_scale": frame.intensity_scale,
         "meta": meta,
     }
@@ -196,7 +195,17 @@ def _is_uint64(value: Any) -> bool:
     return type(value) is int and 0 <= value < 1 << 64
 
 
-def _encode_axis(values: np.ndarray) -> dict | bytes:
+def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
+    explicit = np.ascontiguousarray(values, dtype="<f8").tobytes()
+    recent = _SENT_AXES[name]
+    encoded = recent.get(explicit)
+    if encoded is None:
+        encoded = _uniform_form(values) or explicit
+        recent.put(explicit, encoded)
+    return encoded
+
+
+def _uniform_form(values: np.ndarray) -> dict | None:
     count = len(values)
     if count > 1:
         start = float(values[0])
@@ -211,11 +220,15 @@ def _encode_axis(values: np.ndarray) -> dict | bytes:
             error -= values
             if max(error.max(), -error.min()) <= tolerance:
                 return {"start": start, "step": step, "count": count}
-    return np.ascontiguousarray(values, dtype="<f8").tobytes()
+    return None
 
 
 def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
-    """Axis from the uniform form {start, step, count}, float64 little-endian bytes, or a list of numbers."""
+    """Axis from the uniform form {start, step, count}, float64 little-endian bytes, or a list of numbers.
+
+    Uniform and bytes forms seen lately give the axis checked when first seen (frames.checked_axis), so a
+    stream's geometry is validated once, not per frame; anything else is checked here in full.
+    """
     if isinstance(value, dict):
         if set(value) != {"start", "step", "count"}:
             raise WireError(name, f"a uniform axis has exactly the keys start, step, count; "
@@ -225,27 +238,56 @@ def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
             raise WireError(name, "start and step must be numbers", topic)
         if not isinstance(n, int) or n != count:
             raise WireError(name, f"count {n!r} does not match the shape ({count})", topic)
-        return _uniform_axis(float(start), float(step), count)
-    if isinstance(value, bytes):
+        key: tuple | bytes = (float(start), float(step), count)
+    elif isinstance(value, bytes):
         if len(value) != 8 * count:
             raise WireError(name, f"expected {count} float64 values ({8 * count} bytes), got {len(value)} bytes",
                             topic)
-        return np.frombuffer(value, dtype="<f8")
-    if isinstance(value, list):
+        key = value
+    elif isinstance(value, list):
         if len(value) != count or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in value):
             raise WireError(name, f"expected a list of {count} numbers", topic)
         return np.asarray(value, dtype=np.float64)
-    raise WireError(name, f"expected {{start, step, count}}, float64 bytes or a list, got {type(value).__name__}",
-                    topic)
-
-
-@functools.lru_cache(maxsize=64)
-def _uniform_axis(start: float, step: float, count: int) -> np.ndarray:
-    """A stream repeats its geometry every frame, so each uniform axis is built once (read-only, shared)."""
-    with np.errstate(all="ignore"):  # an absurd start/step gives inf/NaN, which SonarImage then rejects
-        axis = start + step * np.arange(count)
-    axis.flags.writeable = False
+    else:
+        raise WireError(name, f"expected {{start, step, count}}, float64 bytes or a list, got "
+                              f"{type(value).__name__}", topic)
+    recent = _RECEIVED_AXES[name]
+    axis = recent.get(key)
+    if axis is None:
+        if isinstance(key, bytes):
+            values = np.frombuffer(key, dtype="<f8")
+        else:
+            with np.errstate(all="ignore"):  # an absurd start/step gives inf/NaN, which the check rejects
+                values = key[0] + key[1] * np.arange(count)
+        axis = checked_axis(values, name, count)  # FrameError names the field; the caller makes it a WireError
+        recent.put(key, axis)
     return axis
+
+
+class _RecentAxes:
+    """The last few distinct axes of one name, by exact key (float64 bytes or uniform (start, step, count)).
+
+    Compared by equality, newest first: a sonar stream sends the same geometry every frame, so the lookup is one
+    memcmp. Safe across threads: readers iterate a tuple that `put` replaces whole.
+    """
+
+    def __init__(self, size: int = 8) -> None:
+        self._size = size
+        self._entries: tuple[tuple[Any, Any], ...] = ()
+
+    def get(self, key: Any) -> Any:
+        for known, value in self._entries:
+            if known == key:
+                return value
+        return None
+
+    def put(self, key: Any, value: Any) -> None:
+        self._entries = ((key, value), *self._entries[: self._size - 1])
+
+
+_AXIS_NAMES = ("ranges_m", "azimuths_rad")
+_SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
+_RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
 
 
 def _check_status(status: dict, topic: str | None = None) -> dict:
