@@ -23,6 +23,7 @@ SUPPORTED_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.uint32)
 DEFAULT_INTENSITY_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0,
                            np.dtype(np.uint32): 4294967295.0, np.dtype(np.float32): 1.0,
                            np.dtype(np.float64): 1.0}
+_INTEGER = (int, np.integer)
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,32 +54,35 @@ class SonarImage:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        # Runs for every frame received or made (the wire decoder builds one per message): kept lean.
         intensity = self.intensity
         if not isinstance(intensity, np.ndarray):
             raise FrameError(f"intensity: expected a numpy array, got {type(intensity).__name__}")
-        if intensity.dtype.newbyteorder("=") not in SUPPORTED_DTYPES:
+        dtype = intensity.dtype if intensity.dtype.isnative else intensity.dtype.newbyteorder("=")
+        default_scale = DEFAULT_INTENSITY_SCALE.get(dtype)
+        if default_scale is None:
             raise FrameError(f"intensity: unsupported dtype {intensity.dtype}; "
                              f"supported: {', '.join(str(d) for d in SUPPORTED_DTYPES)}")
-        if intensity.ndim not in (2, 3):
-            raise FrameError(f"intensity: expected [ranges, beams] or [samples, ranges, beams], "
-                             f"got shape {intensity.shape}")
-        if min(intensity.shape) == 0:
-            raise FrameError(f"intensity: empty shape {intensity.shape}")
-        if intensity.dtype.kind == "f" and not np.isfinite(intensity).all():
+        shape = intensity.shape
+        if len(shape) not in (2, 3):
+            raise FrameError(f"intensity: expected [ranges, beams] or [samples, ranges, beams], got shape {shape}")
+        if 0 in shape:
+            raise FrameError(f"intensity: empty shape {shape}")
+        if dtype.kind == "f" and not np.isfinite(intensity).all():
             raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
 
-        object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", intensity.shape[-2]))
-        object.__setattr__(self, "azimuths_rad", _axis(self.azimuths_rad, "azimuths_rad", intensity.shape[-1]))
+        object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", shape[-2]))
+        object.__setattr__(self, "azimuths_rad", _axis(self.azimuths_rad, "azimuths_rad", shape[-1]))
 
-        if not isinstance(self.stamp_ns, int | np.integer) or self.stamp_ns < 0:
+        if not isinstance(self.stamp_ns, _INTEGER) or self.stamp_ns < 0:
             raise FrameError(f"stamp_ns: expected a non-negative int, got {self.stamp_ns!r}")
-        if not isinstance(self.seq, int | np.integer) or self.seq < 0:
+        if not isinstance(self.seq, _INTEGER) or self.seq < 0:
             raise FrameError(f"seq: expected a non-negative int, got {self.seq!r}")
         object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
         object.__setattr__(self, "seq", int(self.seq))
         if not isinstance(self.frame_id, str):
             raise FrameError(f"frame_id: expected str, got {type(self.frame_id).__name__}")
-        scale = float(self.intensity_scale) or DEFAULT_INTENSITY_SCALE[intensity.dtype.newbyteorder("=")]
+        scale = float(self.intensity_scale) or default_scale
         if not math.isfinite(scale) or scale <= 0:
             raise FrameError(f"intensity_scale: expected a positive finite number, got {self.intensity_scale}")
         object.__setattr__(self, "intensity_scale", scale)
