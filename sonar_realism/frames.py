@@ -86,7 +86,7 @@ class SonarImage:
         if not math.isfinite(scale) or scale <= 0:
             raise FrameError(f"intensity_scale: expected a positive finite number, got {self.intensity_scale}")
         object.__setattr__(self, "intensity_scale", scale)
-        if not isinstance(self.meta, dict) or not all(isinstance(k, str) for k in self.meta):
+        if not isinstance(self.meta, dict) or not all(map(str.__instancecheck__, self.meta)):
             raise FrameError("meta: expected a dict with str keys")
 
     @property

@@ -39,8 +39,11 @@ WIRE_DTYPES: dict[str, np.dtype] = {dtype.newbyteorder(order).str: dtype.newbyte
 # geometry this close is the same to any sonar, and it keeps headers of 8192-bin frames tiny.
 _UNIFORM_TOLERANCE = 1e-9
 
-_REQUIRED_FRAME_KEYS = {"v", "type", "seq", "stamp_ns", "frame_id", "dtype", "shape", "layout", "ranges_m",
-                        "azimuths_rad"}
+_REQUIRED_FRAME_KEYS = frozenset({"v", "type", "seq", "stamp_ns", "frame_id", "dtype", "shape", "layout",
+                                  "ranges_m", "azimuths_rad"})
+_REQUIRED_STATUS_KEYS = frozenset({"status"})
+_UNIFORM_AXIS_KEYS = frozenset({"start", "step", "count"})
+_NUMBER_TYPES = (int, float)  # exact types: msgpack decodes to nothing else, and bool must not pass as a number
 _STATUS_COUNTERS = ("seq", "frames_in", "frames_out", "dropped", "seq_gaps", "malformed")
 _STATUS_NUMBERS = ("stamp_ns", "uptime_s", "inference_ms")
 
@@ -119,7 +122,7 @@ def decode_message(parts: Sequence[Any]) -> Message:
     if kind == STATUS_TYPE:
         if len(parts) != 2:
             raise WireError("parts", f"a status message has 2 parts [topic, header], got {len(parts)}", topic)
-        _require_keys(topic, header, {"status"})
+        _require_keys(topic, header, _REQUIRED_STATUS_KEYS)
         status = header.get("status")
         if not isinstance(status, dict):
             raise WireError("status", f"expected a map, got {type(status).__name__}", topic)
@@ -230,11 +233,11 @@ def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
     stream's geometry is validated once, not per frame; anything else is checked here in full.
     """
     if isinstance(value, dict):
-        if set(value) != {"start", "step", "count"}:
+        if value.keys() != _UNIFORM_AXIS_KEYS:
             raise WireError(name, f"a uniform axis has exactly the keys start, step, count; "
                                   f"got {sorted(map(str, value))}", topic)
         start, step, n = value["start"], value["step"], value["count"]
-        if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in (start, step)):
+        if type(start) not in _NUMBER_TYPES or type(step) not in _NUMBER_TYPES:
             raise WireError(name, "start and step must be numbers", topic)
         if not isinstance(n, int) or n != count:
             raise WireError(name, f"count {n!r} does not match the shape ({count})", topic)
@@ -378,21 +381,22 @@ def _reject_ext(code: int, data: bytes) -> Any:
 
 
 # msgpack decodes the timestamp extension (-1) itself, without calling ext_hook: catch it in its container.
+# (`in map(type, ...)` runs the scan in C: these hooks run for every map and list of every header.)
 def _reject_timestamps_in_map(mapping: dict) -> dict:
-    for value in mapping.values():
-        if isinstance(value, msgpack.Timestamp):
-            raise _ExtensionFound(-1)
+    if msgpack.Timestamp in map(type, mapping.values()):
+        raise _ExtensionFound(-1)
     return mapping
 
 
 def _reject_timestamps_in_list(items: list) -> list:
-    for value in items:
-        if isinstance(value, msgpack.Timestamp):
-            raise _ExtensionFound(-1)
+    if msgpack.Timestamp in map(type, items):
+        raise _ExtensionFound(-1)
     return items
 
 
-def _require_keys(topic: str, header: dict, required: set[str]) -> None:
+def _require_keys(topic: str, header: dict, required: frozenset[str]) -> None:
+    if header.keys() >= required:
+        return
     missing = sorted(required - set(header))
     if missing:
         raise WireError(missing[0], f"header is missing field(s) {', '.join(missing)}", topic)
