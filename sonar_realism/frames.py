@@ -154,7 +154,7 @@ def checked_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
 
 _CHECKED_AXES: dict[tuple[int, str], np.ndarray] = {}
 _CHECKED_AXES_LOCK = threading.Lock()
-_MAX_CHECKED_AXES = 256
+_MAX_CHECKED_AXES = 64  # at most 64 x 64 KiB (an 8192-value axis, the largest a header can carry) held
 
 
 def _axis(values: Any, name: str, expected_len: int) -> np.ndarray:
