@@ -92,3 +92,13 @@ def test_checked_axis_checks_what_sonar_image_checks():
         SonarImage(np.zeros((4, 8), np.uint8), uniform_ranges(4, 5), ranges)
     with pytest.raises(FrameError, match="expected 4 values"):  # a checked axis of the wrong length
         SonarImage(np.zeros((4, 8), np.uint8), ranges, uniform_azimuths(8, 1.0))
+
+
+def test_checked_axes_are_remembered_in_bounded_memory():
+    from sonar_realism import frames
+
+    axes = [checked_axis(uniform_ranges(8, 5.0 + i), "ranges_m", 8) for i in range(200)]
+    assert len(frames._CHECKED_AXES) <= 64
+    # The oldest is no longer remembered: checked in full again, and still taken as it is.
+    frame = SonarImage(np.zeros((8, 4), np.uint8), axes[0], uniform_azimuths(4, 1.0))
+    assert frame.ranges_m is axes[0]
