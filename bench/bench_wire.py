@@ -9,7 +9,9 @@ baseline sends pre-built [topic, header, data] parts with copy=False and wraps t
 np.frombuffer (the least any receiver does); the wire row builds the header with encode_frame and rebuilds a
 validated SonarImage with decode_frame. A third row, raw + SonarImage, builds the same validated frame from
 the raw view, separating the wire format's own cost from SonarImage validation (a full pass over float
-samples for NaN/inf). The three alternate in blocks so a busy machine hurts all of them.
+samples for NaN/inf; the axes checked per frame, where decode_frame checks a stream's geometry once). The
+three alternate in blocks so a busy machine hurts all of them. The bench's sender keeps its own (writable)
+axis arrays, so encode_frame looks up their wire form by their bytes every frame, as for any publisher.
 """
 
 from __future__ import annotations

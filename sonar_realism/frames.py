@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +23,7 @@ SUPPORTED_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.uint32)
 DEFAULT_INTENSITY_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0,
                            np.dtype(np.uint32): 4294967295.0, np.dtype(np.float32): 1.0,
                            np.dtype(np.float64): 1.0}
+_INTEGER = (int, np.integer)
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,42 +54,39 @@ class SonarImage:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        # Runs for every frame received or made (the wire decoder builds one per message): kept lean.
         intensity = self.intensity
         if not isinstance(intensity, np.ndarray):
             raise FrameError(f"intensity: expected a numpy array, got {type(intensity).__name__}")
-        if intensity.dtype.newbyteorder("=") not in SUPPORTED_DTYPES:
+        dtype = intensity.dtype if intensity.dtype.isnative else intensity.dtype.newbyteorder("=")
+        default_scale = DEFAULT_INTENSITY_SCALE.get(dtype)
+        if default_scale is None:
             raise FrameError(f"intensity: unsupported dtype {intensity.dtype}; "
                              f"supported: {', '.join(str(d) for d in SUPPORTED_DTYPES)}")
-        if intensity.ndim not in (2, 3):
-            raise FrameError(f"intensity: expected [ranges, beams] or [samples, ranges, beams], "
-                             f"got shape {intensity.shape}")
-        if min(intensity.shape) == 0:
-            raise FrameError(f"intensity: empty shape {intensity.shape}")
-        if intensity.dtype.kind == "f" and not np.isfinite(intensity).all():
+        shape = intensity.shape
+        if len(shape) not in (2, 3):
+            raise FrameError(f"intensity: expected [ranges, beams] or [samples, ranges, beams], got shape {shape}")
+        if 0 in shape:
+            raise FrameError(f"intensity: empty shape {shape}")
+        if dtype.kind == "f" and not np.isfinite(intensity).all():
             raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
 
-        ranges = _as_axis(self.ranges_m, "ranges_m", intensity.shape[-2])
-        azimuths = _as_axis(self.azimuths_rad, "azimuths_rad", intensity.shape[-1])
-        if ranges[0] < 0:
-            raise FrameError(f"ranges_m: negative range {ranges[0]}")
-        if np.abs(azimuths).max() > math.pi:
-            raise FrameError("azimuths_rad: bearings beyond ±180° (are they in degrees?)")
-        object.__setattr__(self, "ranges_m", ranges)
-        object.__setattr__(self, "azimuths_rad", azimuths)
+        object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", shape[-2]))
+        object.__setattr__(self, "azimuths_rad", _axis(self.azimuths_rad, "azimuths_rad", shape[-1]))
 
-        if not isinstance(self.stamp_ns, int | np.integer) or self.stamp_ns < 0:
+        if not isinstance(self.stamp_ns, _INTEGER) or self.stamp_ns < 0:
             raise FrameError(f"stamp_ns: expected a non-negative int, got {self.stamp_ns!r}")
-        if not isinstance(self.seq, int | np.integer) or self.seq < 0:
+        if not isinstance(self.seq, _INTEGER) or self.seq < 0:
             raise FrameError(f"seq: expected a non-negative int, got {self.seq!r}")
         object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
         object.__setattr__(self, "seq", int(self.seq))
         if not isinstance(self.frame_id, str):
             raise FrameError(f"frame_id: expected str, got {type(self.frame_id).__name__}")
-        scale = float(self.intensity_scale) or DEFAULT_INTENSITY_SCALE[intensity.dtype.newbyteorder("=")]
+        scale = float(self.intensity_scale) or default_scale
         if not math.isfinite(scale) or scale <= 0:
             raise FrameError(f"intensity_scale: expected a positive finite number, got {self.intensity_scale}")
         object.__setattr__(self, "intensity_scale", scale)
-        if not isinstance(self.meta, dict) or not all(isinstance(k, str) for k in self.meta):
+        if not isinstance(self.meta, dict) or not all(map(str.__instancecheck__, self.meta)):
             raise FrameError("meta: expected a dict with str keys")
 
     @property
@@ -136,15 +135,48 @@ class SonarImage:
                 and np.allclose(self.azimuths_rad, other.azimuths_rad, atol=atol))
 
 
-def _as_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+def checked_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+    """`values` checked as a frame's `name` axis ("ranges_m" or "azimuths_rad"), as a read-only float64 copy that
+    SonarImage then takes without checking it again; FrameError if it is not a valid axis.
+
+    For geometry that repeats frame after frame (every sonar stream): the wire decoder checks each distinct axis
+    once and hands the same array to every frame. The copy is this module's own, so no caller can write to it.
+    """
+    axis = np.array(_check_axis(values, name, expected_len))
+    axis.flags.writeable = False
+    with _CHECKED_AXES_LOCK:
+        if len(_CHECKED_AXES) >= _MAX_CHECKED_AXES:
+            del _CHECKED_AXES[next(iter(_CHECKED_AXES))]  # the oldest; it is checked again if it comes back
+        # Keyed by identity and kept alive here, so the id cannot be reused by another array while listed.
+        _CHECKED_AXES[(id(axis), name)] = axis
+    return axis
+
+
+_CHECKED_AXES: dict[tuple[int, str], np.ndarray] = {}
+_CHECKED_AXES_LOCK = threading.Lock()
+_MAX_CHECKED_AXES = 64  # at most 64 x 64 KiB (an 8192-value axis, the largest a header can carry) held
+
+
+def _axis(values: Any, name: str, expected_len: int) -> np.ndarray:
+    checked = _CHECKED_AXES.get((id(values), name))
+    if checked is values and checked.shape[0] == expected_len:
+        return checked
+    return _check_axis(values, name, expected_len)
+
+
+def _check_axis(values: Any, name: str, expected_len: int) -> np.ndarray:
     axis = np.asarray(values, dtype=np.float64)
     if axis.ndim != 1 or axis.shape[0] != expected_len:
         raise FrameError(f"{name}: expected {expected_len} values (one per "
                          f"{'range bin' if name == 'ranges_m' else 'beam'}), got shape {axis.shape}")
     if not np.isfinite(axis).all():
         raise FrameError(f"{name}: NaN or inf")
-    if expected_len > 1 and not (np.diff(axis) > 0).all():
+    if expected_len > 1 and not (axis[1:] > axis[:-1]).all():
         raise FrameError(f"{name}: must be strictly increasing")
+    if name == "ranges_m" and axis[0] < 0:
+        raise FrameError(f"ranges_m: negative range {axis[0]}")
+    if name == "azimuths_rad" and max(-axis[0], axis[-1]) > math.pi:  # increasing: the ends are the extremes
+        raise FrameError("azimuths_rad: bearings beyond ±180° (are they in degrees?)")
     return axis
 
 

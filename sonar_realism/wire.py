@@ -11,7 +11,6 @@ This module does not import zmq: it works on anything that exposes the buffer pr
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -22,7 +21,7 @@ import msgpack
 import numpy as np
 
 from sonar_realism.errors import FrameError, WireError
-from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage
+from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, checked_axis
 
 WIRE_VERSION = 1
 FRAME_TYPE = "frame"
@@ -40,8 +39,11 @@ WIRE_DTYPES: dict[str, np.dtype] = {dtype.newbyteorder(order).str: dtype.newbyte
 # geometry this close is the same to any sonar, and it keeps headers of 8192-bin frames tiny.
 _UNIFORM_TOLERANCE = 1e-9
 
-_REQUIRED_FRAME_KEYS = {"v", "type", "seq", "stamp_ns", "frame_id", "dtype", "shape", "layout", "ranges_m",
-                        "azimuths_rad"}
+_REQUIRED_FRAME_KEYS = frozenset({"v", "type", "seq", "stamp_ns", "frame_id", "dtype", "shape", "layout",
+                                  "ranges_m", "azimuths_rad"})
+_REQUIRED_STATUS_KEYS = frozenset({"status"})
+_UNIFORM_AXIS_KEYS = frozenset({"start", "step", "count"})
+_NUMBER_TYPES = (int, float)  # exact types: msgpack decodes to nothing else, and bool must not pass as a number
 _STATUS_COUNTERS = ("seq", "frames_in", "frames_out", "dropped", "seq_gaps", "malformed")
 _STATUS_NUMBERS = ("stamp_ns", "uptime_s", "inference_ms")
 
@@ -68,8 +70,8 @@ def encode_frame(frame: SonarImage, topic: str, provenance: dict | None = None) 
         "dtype": intensity.dtype.str,
         "shape": list(intensity.shape),
         "layout": LAYOUT,
-        "ranges_m": _encode_axis(frame.ranges_m),
-        "azimuths_rad": _encode_axis(frame.azimuths_rad),
+        "ranges_m": _encode_axis(frame.ranges_m, "ranges_m"),
+        "azimuths_rad": _encode_axis(frame.azimuths_rad, "azimuths_rad"),
         "intensity_scale": frame.intensity_scale,
         "meta": meta,
     }
@@ -120,7 +122,7 @@ def decode_message(parts: Sequence[Any]) -> Message:
     if kind == STATUS_TYPE:
         if len(parts) != 2:
             raise WireError("parts", f"a status message has 2 parts [topic, header], got {len(parts)}", topic)
-        _require_keys(topic, header, {"status"})
+        _require_keys(topic, header, _REQUIRED_STATUS_KEYS)
         status = header.get("status")
         if not isinstance(status, dict):
             raise WireError("status", f"expected a map, got {type(status).__name__}", topic)
@@ -196,7 +198,17 @@ def _is_uint64(value: Any) -> bool:
     return type(value) is int and 0 <= value < 1 << 64
 
 
-def _encode_axis(values: np.ndarray) -> dict | bytes:
+def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
+    explicit = np.ascontiguousarray(values, dtype="<f8").tobytes()
+    recent = _SENT_AXES[name]
+    encoded = recent.get(explicit)
+    if encoded is None:
+        encoded = _uniform_form(values) or explicit
+        recent.put(explicit, encoded)
+    return encoded
+
+
+def _uniform_form(values: np.ndarray) -> dict | None:
     count = len(values)
     if count > 1:
         start = float(values[0])
@@ -211,41 +223,74 @@ def _encode_axis(values: np.ndarray) -> dict | bytes:
             error -= values
             if max(error.max(), -error.min()) <= tolerance:
                 return {"start": start, "step": step, "count": count}
-    return np.ascontiguousarray(values, dtype="<f8").tobytes()
+    return None
 
 
 def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
-    """Axis from the uniform form {start, step, count}, float64 little-endian bytes, or a list of numbers."""
+    """Axis from the uniform form {start, step, count}, float64 little-endian bytes, or a list of numbers.
+
+    Uniform and bytes forms seen lately give the axis checked when first seen (frames.checked_axis), so a
+    stream's geometry is validated once, not per frame; anything else is checked here in full.
+    """
     if isinstance(value, dict):
-        if set(value) != {"start", "step", "count"}:
+        if value.keys() != _UNIFORM_AXIS_KEYS:
             raise WireError(name, f"a uniform axis has exactly the keys start, step, count; "
                                   f"got {sorted(map(str, value))}", topic)
         start, step, n = value["start"], value["step"], value["count"]
-        if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in (start, step)):
+        if type(start) not in _NUMBER_TYPES or type(step) not in _NUMBER_TYPES:
             raise WireError(name, "start and step must be numbers", topic)
         if not isinstance(n, int) or n != count:
             raise WireError(name, f"count {n!r} does not match the shape ({count})", topic)
-        return _uniform_axis(float(start), float(step), count)
-    if isinstance(value, bytes):
+        key: tuple | bytes = (float(start), float(step), count)
+    elif isinstance(value, bytes):
         if len(value) != 8 * count:
             raise WireError(name, f"expected {count} float64 values ({8 * count} bytes), got {len(value)} bytes",
                             topic)
-        return np.frombuffer(value, dtype="<f8")
-    if isinstance(value, list):
+        key = value
+    elif isinstance(value, list):
         if len(value) != count or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in value):
             raise WireError(name, f"expected a list of {count} numbers", topic)
         return np.asarray(value, dtype=np.float64)
-    raise WireError(name, f"expected {{start, step, count}}, float64 bytes or a list, got {type(value).__name__}",
-                    topic)
-
-
-@functools.lru_cache(maxsize=64)
-def _uniform_axis(start: float, step: float, count: int) -> np.ndarray:
-    """A stream repeats its geometry every frame, so each uniform axis is built once (read-only, shared)."""
-    with np.errstate(all="ignore"):  # an absurd start/step gives inf/NaN, which SonarImage then rejects
-        axis = start + step * np.arange(count)
-    axis.flags.writeable = False
+    else:
+        raise WireError(name, f"expected {{start, step, count}}, float64 bytes or a list, got "
+                              f"{type(value).__name__}", topic)
+    recent = _RECEIVED_AXES[name]
+    axis = recent.get(key)
+    if axis is None:
+        if isinstance(key, bytes):
+            values = np.frombuffer(key, dtype="<f8")
+        else:
+            with np.errstate(all="ignore"):  # an absurd start/step gives inf/NaN, which the check rejects
+                values = key[0] + key[1] * np.arange(count)
+        axis = checked_axis(values, name, count)  # FrameError names the field; the caller makes it a WireError
+        recent.put(key, axis)
     return axis
+
+
+class _RecentAxes:
+    """The last few distinct axes of one name, by exact key (float64 bytes or uniform (start, step, count)).
+
+    Compared by equality, newest first: a sonar stream sends the same geometry every frame, so the lookup is one
+    memcmp. Safe across threads: readers iterate a tuple that `put` replaces whole.
+    """
+
+    def __init__(self, size: int = 8) -> None:
+        self._size = size
+        self._entries: tuple[tuple[Any, Any], ...] = ()
+
+    def get(self, key: Any) -> Any:
+        for known, value in self._entries:
+            if known == key:
+                return value
+        return None
+
+    def put(self, key: Any, value: Any) -> None:
+        self._entries = ((key, value), *self._entries[: self._size - 1])
+
+
+_AXIS_NAMES = ("ranges_m", "azimuths_rad")
+_SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
+_RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
 
 
 def _check_status(status: dict, topic: str | None = None) -> dict:
@@ -336,21 +381,22 @@ def _reject_ext(code: int, data: bytes) -> Any:
 
 
 # msgpack decodes the timestamp extension (-1) itself, without calling ext_hook: catch it in its container.
+# (`in map(type, ...)` runs the scan in C: these hooks run for every map and list of every header.)
 def _reject_timestamps_in_map(mapping: dict) -> dict:
-    for value in mapping.values():
-        if isinstance(value, msgpack.Timestamp):
-            raise _ExtensionFound(-1)
+    if msgpack.Timestamp in map(type, mapping.values()):
+        raise _ExtensionFound(-1)
     return mapping
 
 
 def _reject_timestamps_in_list(items: list) -> list:
-    for value in items:
-        if isinstance(value, msgpack.Timestamp):
-            raise _ExtensionFound(-1)
+    if msgpack.Timestamp in map(type, items):
+        raise _ExtensionFound(-1)
     return items
 
 
-def _require_keys(topic: str, header: dict, required: set[str]) -> None:
+def _require_keys(topic: str, header: dict, required: frozenset[str]) -> None:
+    if header.keys() >= required:
+        return
     missing = sorted(required - set(header))
     if missing:
         raise WireError(missing[0], f"header is missing field(s) {', '.join(missing)}", topic)

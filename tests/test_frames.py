@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from sonar_realism import FrameError, SonarImage
-from sonar_realism.frames import uniform_azimuths, uniform_ranges
+from sonar_realism.frames import checked_axis, uniform_azimuths, uniform_ranges
 
 
 def make(shape=(64, 32), dtype=np.uint8, **kw):
@@ -68,3 +68,37 @@ def test_normalized_and_replace():
     assert bright.normalized().max() == 1.0
     with pytest.raises(FrameError):
         frame.replace(seq=-1)
+
+
+def test_a_checked_axis_is_a_read_only_copy_taken_as_is():
+    bearings = uniform_azimuths(32, np.radians(130))
+    axis = checked_axis(bearings, "azimuths_rad", 32)
+    bearings[0] = -10.0  # the caller's array is not the checked one
+    frame = SonarImage(np.zeros((64, 32), np.uint8), uniform_ranges(64, 10.0), axis)
+    assert frame.azimuths_rad is axis and axis[0] > -np.pi
+    with pytest.raises(ValueError, match="read-only"):
+        axis[1] = 0.0
+
+
+def test_checked_axis_checks_what_sonar_image_checks():
+    with pytest.raises(FrameError, match="degrees"):
+        checked_axis(np.array([-65.0, -10, 10, 65]), "azimuths_rad", 4)
+    with pytest.raises(FrameError, match="negative range"):
+        checked_axis(np.array([-0.5, 1.0]), "ranges_m", 2)
+    with pytest.raises(FrameError, match="strictly increasing"):
+        checked_axis(np.array([0.0, 0.0]), "ranges_m", 2)
+    ranges = checked_axis(uniform_ranges(8, 5), "ranges_m", 8)
+    with pytest.raises(FrameError, match="degrees"):  # checked as ranges (up to 4.7 m), not as bearings
+        SonarImage(np.zeros((4, 8), np.uint8), uniform_ranges(4, 5), ranges)
+    with pytest.raises(FrameError, match="expected 4 values"):  # a checked axis of the wrong length
+        SonarImage(np.zeros((4, 8), np.uint8), ranges, uniform_azimuths(8, 1.0))
+
+
+def test_checked_axes_are_remembered_in_bounded_memory():
+    from sonar_realism import frames
+
+    axes = [checked_axis(uniform_ranges(8, 5.0 + i), "ranges_m", 8) for i in range(200)]
+    assert len(frames._CHECKED_AXES) <= 64
+    # The oldest is no longer remembered: checked in full again, and still taken as it is.
+    frame = SonarImage(np.zeros((8, 4), np.uint8), axes[0], uniform_azimuths(4, 1.0))
+    assert frame.ranges_m is axes[0]

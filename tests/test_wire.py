@@ -328,3 +328,41 @@ def test_fuzzed_bytes_raise_only_wire_error(parts):
         decode_message(parts)
     except WireError:
         pass
+
+
+def test_a_streams_geometry_is_checked_once_and_shared_by_its_frames():
+    first, second = make_frame(seq=1), make_frame(seq=2)
+    _, a = decode_frame(to_bytes(encode_frame(first, "t")))
+    _, b = decode_frame(to_bytes(encode_frame(second, "t")))
+    assert b.ranges_m is a.ranges_m and b.azimuths_rad is a.azimuths_rad
+    with pytest.raises(ValueError, match="read-only"):
+        a.azimuths_rad[0] = 0.0  # shared by every later frame of the stream: nobody may change it
+
+
+@pytest.mark.parametrize("form", ["bytes", "uniform"])
+def test_a_changed_axis_is_checked_again_and_a_bad_one_rejected_with_its_field(form):
+    good = make_frame()
+    decode_frame(to_bytes(encode_frame(good, "t")))  # the stream's geometry is now known
+    header = msgpack.unpackb(bytes(encode_frame(good, "t")[1]))
+    data = good.intensity.tobytes()
+    if form == "bytes":
+        bearings = good.azimuths_rad.copy()
+        bearings[[3, 4]] = bearings[[4, 3]]  # same length, one swap: no longer increasing
+        header["azimuths_rad"] = bearings.astype("<f8").tobytes()
+        field, reason = "azimuths_rad", "strictly increasing"
+    else:
+        header["ranges_m"] = {**header["ranges_m"], "start": -1.0}
+        field, reason = "ranges_m", "negative range"
+    with pytest.raises(WireError, match=reason) as caught:
+        decode_frame([b"t", msgpack.packb(header, use_bin_type=True), data])
+    assert caught.value.field == field
+    _, again = decode_frame(to_bytes(encode_frame(good, "t")))  # the good geometry still decodes
+    np.testing.assert_array_equal(again.azimuths_rad, good.azimuths_rad)
+
+
+def test_bearings_that_change_every_frame_are_decoded_exactly():
+    for seq in range(20):  # more distinct axes than are remembered
+        bearings = np.sort(np.random.default_rng(seq).uniform(-1.0, 1.0, 16))
+        frame = make_frame(seq=seq).replace(azimuths_rad=bearings)
+        _, decoded = decode_frame(to_bytes(encode_frame(frame, "t")))
+        np.testing.assert_array_equal(decoded.azimuths_rad, bearings)

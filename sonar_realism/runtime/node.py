@@ -608,7 +608,9 @@ class Node:
 
     def _drain(self, sock: zmq.Socket, input_name: str) -> None:
         queue, state = self.queues[input_name], self._inputs[input_name]
-        while queue.has_room() and not queue.ended:
+        # EVENTS rather than a recv that raises zmq.Again: after handing a frame over, this thread should get
+        # back to its poll (which lets the processing thread have the GIL) as soon as it can.
+        while queue.has_room() and not queue.ended and sock.get(zmq.EVENTS) & zmq.POLLIN:
             try:
                 parts = sock.recv_multipart(flags=zmq.NOBLOCK, copy=False)
             except zmq.Again:
