@@ -171,7 +171,8 @@ class Decoder(nn.Module):
         deepest = len(skips) - 1
         for step, (up, fuse) in enumerate(zip(self.ups, self.fuse, strict=True)):
             level = deepest - 1 - step
-            x = up(x) if self.training or not isinstance(up[0], nn.Upsample) else nearest_up_conv(x, up[1])
+            # resize_conv: the Upsample + conv pair, computed as the one transposed conv it equals
+            x = nearest_up_conv(x, up[1]) if isinstance(up[0], nn.Upsample) else up(x)
             x = self.dropout(_fuse_skip(fuse, x, skips[level]) if level in self.skip_levels else fuse(x))
         x = self.out(x)
         if tuple(x.shape[-2:]) != tuple(self.grid):

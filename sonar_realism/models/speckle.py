@@ -51,11 +51,24 @@ class SpeckleField(nn.Module):
         kernel[:, KERNEL_SIZE // 2, KERNEL_SIZE // 2] = 1.0
         self.register_buffer("kernel", kernel)
         self.register_buffer("fitted", torch.zeros(()))
-        self._derived: dict[tuple, torch.Tensor] = {}  # kernel spectra per grid, the dense quantile table
+        self._spectra: dict[tuple[int, int], torch.Tensor] = {}  # kernel spectra per grid
+        self._refresh()
 
     def _load_from_state_dict(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
-        self._derived.clear()  # a new fit arrives with the state
         super()._load_from_state_dict(*args, **kwargs)
+        self._refresh()  # a new fit arrived with the state
+
+    def _refresh(self) -> None:
+        """Lookup tables derived from the fit, so sampling does one table read per pixel where it would search
+        or interpolate: the level bin at LEVEL_STEPS levels, and the quantile table at DENSE_STEPS normal scores
+        per bin (0.01 apart), flattened."""
+        self._level_lookup = torch.bucketize(torch.linspace(0.0, 1.0, LEVEL_STEPS), self.level_edges.float().cpu())
+        position = torch.linspace(0.0, QUANTILES - 1, DENSE_STEPS)
+        low = position.floor().long().clamp(max=QUANTILES - 2)
+        frac = position - low
+        table = self.ratio_quantiles.float().cpu()
+        self._dense_quantiles = (table[:, low] + frac * (table[:, low + 1] - table[:, low])).flatten()
+        self._spectra.clear()
 
     @property
     def is_fitted(self) -> bool:
@@ -66,16 +79,12 @@ class SpeckleField(nn.Module):
         self.ratio_quantiles.copy_(torch.from_numpy(ratio_quantiles.astype(np.float32)))
         self.kernel.copy_(torch.from_numpy(kernel.astype(np.float32)))
         self.fitted.fill_(1.0)
-        self._derived.clear()
+        self._refresh()
 
     def level_bins(self, mean: torch.Tensor) -> torch.Tensor:
-        """Each pixel's level bin (int64), looked up at LEVEL_STEPS levels: one lookup instead of a search."""
-        key = ("bins",)
-        if key not in self._derived:
-            levels = torch.linspace(0.0, 1.0, LEVEL_STEPS)
-            self._derived[key] = torch.bucketize(levels, self.level_edges.float())
+        """Each pixel's level bin (int64), read from the table at the nearest of LEVEL_STEPS levels."""
         step = (mean * (LEVEL_STEPS - 1)).round_().clamp_(0, LEVEL_STEPS - 1).long()
-        return torch.take(self._derived[key], step)
+        return torch.take(self._level_lookup, step)
 
     def correlated_normal(self, bins: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
         """[n, H, W] unit-variance normal fields with the fitted grain of each pixel's level bin [n, H, W]."""
@@ -95,8 +104,8 @@ class SpeckleField(nn.Module):
     def _kernel_spectra(self, rows: int, cols: int) -> torch.Tensor:
         """rfft2 of each group's kernel laid circularly on a rows x cols grid, centre at (0, 0), at unit energy
         (so white noise through it has unit variance on any grid); cached per grid."""
-        key = ("spectra", rows, cols)
-        if key not in self._derived:
+        key = (rows, cols)
+        if key not in self._spectra:
             taps = torch.arange(KERNEL_SIZE) - KERNEL_SIZE // 2
             index_r = (taps % rows)[:, None].expand(KERNEL_SIZE, KERNEL_SIZE)
             index_c = (taps % cols)[None, :].expand(KERNEL_SIZE, KERNEL_SIZE)
@@ -104,25 +113,13 @@ class SpeckleField(nn.Module):
             for group in range(GRAIN_GROUPS):
                 laid[group].index_put_((index_r, index_c), self.kernel[group].float(), accumulate=True)
             laid /= laid.square().sum(dim=(1, 2), keepdim=True).sqrt().clamp_min(1e-12)
-            self._derived[key] = torch.fft.rfft2(laid)
-        return self._derived[key]
-
-    def _dense_quantiles(self) -> torch.Tensor:
-        """The quantile table resampled to DENSE_STEPS normal scores per bin, flattened: one lookup per pixel
-        instead of an interpolation between two (the steps are 0.01 normal scores apart)."""
-        key = ("quantiles",)
-        if key not in self._derived:
-            position = torch.linspace(0.0, QUANTILES - 1, DENSE_STEPS)
-            low = position.floor().long().clamp(max=QUANTILES - 2)
-            frac = position - low
-            table = self.ratio_quantiles.float()
-            self._derived[key] = (table[:, low] + frac * (table[:, low + 1] - table[:, low])).flatten()
-        return self._derived[key]
+            self._spectra[key] = torch.fft.rfft2(laid)
+        return self._spectra[key]
 
     def ratios(self, bins: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
         """r for each pixel: the quantile of its level bin at the normal field's probability."""
         step = ((normal + NORMAL_SPAN) * ((DENSE_STEPS - 1) / (2 * NORMAL_SPAN))).round_().clamp_(0, DENSE_STEPS - 1)
-        return torch.take(self._dense_quantiles(), bins * DENSE_STEPS + step.long())
+        return torch.take(self._dense_quantiles, bins * DENSE_STEPS + step.long())
 
     def sample(self, mean: np.ndarray, generator: torch.Generator | None) -> np.ndarray:
         """Speckled, max-scaled, 8-bit-quantised samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W]."""
