@@ -4,12 +4,19 @@ import os
 import tempfile
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from sonar_realism.errors import FormatError
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
-from sonar_realism.io.oculus import decode_ping, encode_message, encode_ping, read_oculus, write_oculus_log
+from sonar_realism.io.oculus import (
+    SQLITE_MAGIC,
+    decode_ping,
+    encode_message,
+    encode_ping,
+    read_oculus,
+    write_oculus_log,
+)
 from sonar_realism.io.report import ReadReport
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -141,6 +148,9 @@ def test_corrupting_one_record_loses_no_other_record(kind, victim, data):
         mutated[at:at] = data.draw(st.binary(min_size=1, max_size=40))
     else:
         mutated[at:min(at + data.draw(st.integers(1, 40)), end)] = b""
+    # A file that now begins with the SQLite magic is a V2 log to the reader (refused by design), not a
+    # recording with one bad record: hypothesis found this by inserting the magic at byte 0 of a raw stream.
+    assume(not mutated.startswith(SQLITE_MAGIC))
     report = ReadReport()
     with tempfile.TemporaryDirectory() as folder:
         path = os.path.join(folder, "one_bad_record.bin")
