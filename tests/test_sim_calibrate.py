@@ -14,7 +14,7 @@ import pytest
 from sonar_realism.cli import main as cli_main
 from sonar_realism.errors import ConfigError
 from sonar_realism.io import read_frames
-from sonar_realism.sim.calibrate import MIN_FRAMES, CalibrateConfig, calibrate
+from sonar_realism.sim.calibrate import MIN_FRAMES, CalibrateConfig, _headroom, _match_onsets, calibrate
 from sonar_realism.sim.calibrated import simulate_calibrated
 from sonar_realism.sim.calibration import (
     CALIBRATION_VERSION,
@@ -29,8 +29,10 @@ from sonar_realism.sim.calibration import (
     save_calibration,
 )
 from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER
+from sonar_realism.sim.fingerprint import per_frame_rescaled
 
 HEIGHT_M, TILT_DEG = 1.2, 8.0
+OUTPUT_GAIN = 2.5  # above the default 1.0: the recording saturates its bright seabed
 
 
 def exact(value: float) -> Estimate:
@@ -45,7 +47,8 @@ def truth(present: float = 0.0) -> Calibration:
         mounting=Mounting(exact(HEIGHT_M), exact(TILT_DEG), exact(0.05), exact(0.5), 20.0),
         seabed=SeabedTerms(exact(0.5), exact(0.5), exact(0.1), exact(0.01)),
         targets=TargetTerms(exact(present), exact(0.8), exact(0.5), exact(2.0), 1.0),
-        effects={name: EFFECTS[name]().params() for name in PIPELINE_ORDER}, fitted=(),
+        effects={**{name: EFFECTS[name]().params() for name in PIPELINE_ORDER},
+                 "gamma_quantization": {**EFFECTS["gamma_quantization"]().params(), "gain": OUTPUT_GAIN}}, fitted=(),
         range_gain_db=(0.0, 0.0), bearing_gain_db=(0.0, 0.0), distances={}, export_rescaled=True)
 
 
@@ -54,7 +57,7 @@ def recording() -> list:
     return [frame for frame, _ in simulate_calibrated(truth(), 12, seed=3)]
 
 
-FAST = CalibrateConfig(sim_frames=3, rounds=1, bootstrap=20, effect_bootstrap=1, texture=False)
+FAST = CalibrateConfig(sim_frames=3, mounting_frames=8, rounds=1, bootstrap=20, effect_bootstrap=1, texture=False)
 
 
 @pytest.fixture(scope="module")
@@ -72,6 +75,24 @@ def test_calibrate_recovers_grid_and_mounting_of_a_known_recording(calibrated) -
         assert estimate.low <= estimate.value <= estimate.high
     assert {(p.effect, p.name) for p in c.fitted} == {(n, p) for n in EFFECTS for p in EFFECTS[n].CALIBRATED}
     assert c.distances["calibrated sim"] <= c.distances["geometry + default effects"] + 1e-9
+
+
+def test_calibrated_seabed_sits_as_far_below_the_brightest_level_as_in_the_recording(calibrated) -> None:
+    """The recording saturates its bright seabed (output gain 2.5); the calibrated sim shows the same headroom."""
+    sim = [per_frame_rescaled(f.intensity) for f, _ in simulate_calibrated(calibrated.calibration, 24, seed=3)]
+    assert _headroom(sim) == pytest.approx(_headroom(calibrated.real_images), rel=0.08)
+
+
+def test_onset_match_scales_height_by_the_median_and_heave_and_pitch_by_the_spread() -> None:
+    rng = np.random.default_rng(0)
+    real, sim = 2.0 * (1 + 0.1 * rng.standard_normal(400)), 2.5 * (1 + 0.2 * rng.standard_normal(400))
+    before = truth().mounting
+    after = _match_onsets(truth(), real, sim, spread=True).mounting
+    assert after.height_m.value == pytest.approx(before.height_m.value * 0.8, rel=0.05)
+    for name in ("heave_sd_m", "pitch_sd_deg"):
+        assert getattr(after, name).value == pytest.approx(getattr(before, name).value * 0.5, rel=0.2)
+    assert after.tilt_deg == before.tilt_deg
+    assert _match_onsets(truth(), real, sim, spread=False).mounting.heave_sd_m == before.heave_sd_m
 
 
 def test_calibration_file_round_trips_and_rejects_bad_content(calibrated, tmp_path: Path) -> None:

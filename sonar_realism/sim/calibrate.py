@@ -56,11 +56,18 @@ from sonar_realism.sim.calibration import (
     TargetTerms,
     save_calibration,
 )
-from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, calibrated_parameters
+from sonar_realism.sim.effects import (
+    EFFECTS,
+    PIPELINE_ORDER,
+    Effect,
+    GammaQuantization,
+    apply_effects,
+    calibrated_parameters,
+)
 from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, per_frame_rescaled, resample_profile
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
-from sonar_realism.sim.texture import fit_texture
+from sonar_realism.sim.texture import fit_texture, local_mean
 
 MIN_FRAMES = 8
 MAX_GRID_MODES = 24
@@ -80,6 +87,8 @@ class CalibrateConfig:
     default_fov_deg: float = 130.0  # bearing span when the recording has no bearing table
     default_range_bin_m: float = 0.02  # range bin when the recording has no range window
     sim_frames: int = 8
+    # frames the final mounting match draws: the onset's spread over frames needs more than the effects' fit
+    mounting_frames: int = 32
     rounds: int = 3
     bootstrap: int = 200
     effect_bootstrap: int = 4
@@ -93,8 +102,10 @@ class CalibrateConfig:
             raise ConfigError("calibrate: vertical_fov_deg must be in 0.5..90 and default_fov_deg in 1..179")
         if not 1e-4 <= self.default_range_bin_m <= 1.0:
             raise ConfigError(f"calibrate: default_range_bin_m {self.default_range_bin_m} outside 1e-4..1 m")
-        if self.sim_frames < 2 or self.rounds < 1 or self.bootstrap < 2 or self.effect_bootstrap < 0:
-            raise ConfigError("calibrate: need sim_frames >= 2, rounds >= 1, bootstrap >= 2, effect_bootstrap >= 0")
+        if (self.sim_frames < 2 or self.mounting_frames < 2 or self.rounds < 1 or self.bootstrap < 2
+                or self.effect_bootstrap < 0):
+            raise ConfigError("calibrate: need sim_frames >= 2, mounting_frames >= 2, rounds >= 1, bootstrap >= 2, "
+                              "effect_bootstrap >= 0")
 
 
 @dataclass(frozen=True)
@@ -183,10 +194,31 @@ def _sim_images(calibration: Calibration, chain: Sequence[Effect], n: int, seed:
     return out
 
 
-def _median_onset(images: Sequence[np.ndarray], bins: Sequence[float]) -> float:
-    onsets = [np.nanmedian(rows) * b for image, b in zip(images, bins, strict=True)
-              if np.isfinite(rows := measure.onset_rows(image)).any()]
-    return float(np.median(onsets)) if onsets else math.nan
+def _frame_onsets(images: Sequence[np.ndarray], bins: Sequence[float]) -> np.ndarray:
+    """Seabed onset (m) per frame: the median over the beam groups that show one; frames without one left out.
+    Real and simulated frames are measured alike, so their onsets compare like for like."""
+    return np.array([np.nanmedian(rows) * b for image, b in zip(images, bins, strict=True)
+                     if np.isfinite(rows := measure.onset_rows(image)).any()])
+
+
+def _scaled(estimate: Estimate, factor: float) -> Estimate:
+    return Estimate(estimate.value * factor, estimate.low * factor, estimate.high * factor)
+
+
+def _match_onsets(calibration: Calibration, real: np.ndarray, sim: np.ndarray, spread: bool) -> Calibration:
+    """Height scaled so the simulated onsets' median is the real one; with `spread`, heave and pitch scaled
+    together so their spread over frames is the real one too (both move the onset, so fitting each to the
+    onset's spread alone counts it twice)."""
+    if len(real) < 3 or len(sim) < 3 or np.median(sim) <= 0:
+        return calibration
+    m = calibration.mounting
+    mounting = dataclasses.replace(m, height_m=_scaled(m.height_m, float(np.median(real) / np.median(sim))))
+    sim_spread = _robust_sd(sim / np.median(sim))
+    if spread and sim_spread > 0:
+        factor = float(np.clip(_robust_sd(real / np.median(real)) / sim_spread, 0.25, 4.0))
+        mounting = dataclasses.replace(mounting, heave_sd_m=_scaled(m.heave_sd_m, factor),
+                                       pitch_sd_deg=_scaled(m.pitch_sd_deg, factor))
+    return dataclasses.replace(calibration, mounting=mounting)
 
 
 def _seabed_summary(images: Sequence[np.ndarray]) -> tuple[float, float, float]:
@@ -195,6 +227,52 @@ def _seabed_summary(images: Sequence[np.ndarray]) -> tuple[float, float, float]:
         return math.nan, math.nan, math.nan
     return (float(np.median([s.contrast for s in stats])), float(np.median([s.scale_rows for s in stats])),
             float(np.median([s.dark_fraction for s in stats])))
+
+
+def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: SeabedLook,
+                  real: tuple[float, float, float], n: int, seed: int) -> SeabedLook:
+    """The seabed look whose simulated patchiness (contrast, correlation length, dark share) is the real one's,
+    by three multiplicative updates under `chain`."""
+    real_contrast, real_scale_rows, real_dark = real
+    for _ in range(3):
+        contrast, scale_rows, dark = _seabed_summary(_sim_images(calibration, chain, n, seed, gain=False, look=look))
+        if not math.isfinite(contrast):
+            break
+        look = SeabedLook(float(np.clip(look.patch_contrast * real_contrast / max(contrast, 1e-3), 0.0, 2.5)),
+                          float(np.clip(look.patch_scale_m * real_scale_rows / max(scale_rows, 0.5), 0.05, 20.0)),
+                          float(np.clip(look.dark_fraction + (real_dark - dark), 0.0, 0.8)), look.roughness_m)
+    return look
+
+
+def _headroom(images: Sequence[np.ndarray]) -> float:
+    values = [h for image in images if (h := measure.seabed_headroom(image, local_mean(image))) is not None]
+    return float(np.median(values)) if values else math.nan
+
+
+def _match_headroom(calibration: Calibration, chain: list[Effect], real: float, n: int, seed: int,
+                    ) -> tuple[Calibration, list[Effect]]:
+    """The output mapping's gain set so the seabed sits as far below the brightest level as in the recording:
+    too high a gain saturates the bright seabed and flattens the top of the level range, which per-frame
+    rescaling then shows as a seabed too close to white. Below saturation the headroom no longer depends on the
+    gain, so the search stops at the effect's bounds."""
+    low, high = GammaQuantization.PARAM_BOUNDS["gain"]
+    for _ in range(2):
+        sim = _headroom(_sim_images(calibration, chain, n, seed))
+        if not (math.isfinite(sim) and math.isfinite(real)) or sim <= 0:
+            break
+        output = calibration.effects["gamma_quantization"]
+        # the headroom grows about as gain^0.55 while the seabed saturates (measured on the Oculus set)
+        gain = float(np.clip(output["gain"] * (real / sim) ** 1.8, low, high))
+        gain = round(gain, 4)
+        calibration = dataclasses.replace(calibration, effects={
+            **calibration.effects, "gamma_quantization": {**output, "gain": gain}})
+        chain = [dataclasses.replace(e, gain=gain) if isinstance(e, GammaQuantization) else e for e in chain]
+    return calibration, chain
+
+
+def _fixed_seabed(look: SeabedLook) -> SeabedTerms:
+    return SeabedTerms(_fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.dark_fraction),
+                       _fixed(look.roughness_m))
 
 
 def _sim_highlight(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
@@ -330,7 +408,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     tilt = _estimate(seen[:, 1], np.median, rng, b)
     mounting = Mounting(height, tilt, _estimate(seen[:, 0], _robust_sd, rng, b),
                         _estimate(seen[:, 1], _robust_sd, rng, b), config.vertical_fov_deg)
-    real_onset = float(np.median(seen[:, 2]))
+    real_onsets = _frame_onsets(images, [_bin(f) for f in frames])
 
     # seabed patchiness and targets, measured on the recording
     real_contrast, real_scale_rows, real_dark = _seabed_summary(images)
@@ -353,8 +431,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     mean_bin = float(np.median([_bin(f) for f in frames]))
     look = SeabedLook(patch_contrast=min(2.5, real_contrast / 0.6), patch_scale_m=real_scale_rows * mean_bin,
                       dark_fraction=min(0.8, real_dark), roughness_m=0.01)
-    seabed = SeabedTerms(_fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.dark_fraction),
-                         _fixed(look.roughness_m))
+    seabed = _fixed_seabed(look)
     defaults = [EFFECTS[name]() for name in PIPELINE_ORDER]
     calibration = Calibration(
         CALIBRATION_VERSION, source, len(frames), grid, mounting, seabed, targets,
@@ -365,27 +442,15 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
 
     # height: the simulated onset on the real one (same detector), when there is a real one to match
     for _ in range(2 if onset_measured else 0):
-        sim_onset = _median_onset(_sim_images(calibration, defaults, n, seed, gain=False), bins)
-        if math.isfinite(sim_onset) and sim_onset > 0:
-            scale = real_onset / sim_onset
-            mounting = dataclasses.replace(mounting, height_m=Estimate(*(v * scale for v in (
-                mounting.height_m.value, mounting.height_m.low, mounting.height_m.high))))
-            calibration = dataclasses.replace(calibration, mounting=mounting)
+        sim_onsets = _frame_onsets(_sim_images(calibration, defaults, n, seed, gain=False), bins)
+        calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=False)
+    mounting = calibration.mounting
     say(f"mounting: height {mounting.height_m.value:.2f} m, tilt {mounting.tilt_deg.value:.1f} deg")
     # seabed look matched under the current effects, then the effects refitted on top; twice, as they interact
     chain = defaults
     for rounds, step in ((config.rounds, 0.25), (1, 0.06)):
-        for _ in range(3):
-            contrast, scale_rows, dark = _seabed_summary(_sim_images(calibration, chain, n, seed, gain=False,
-                                                                     look=look))
-            if not math.isfinite(contrast):
-                break
-            look = SeabedLook(float(np.clip(look.patch_contrast * real_contrast / max(contrast, 1e-3), 0.0, 2.5)),
-                              float(np.clip(look.patch_scale_m * real_scale_rows / max(scale_rows, 0.5), 0.05, 20.0)),
-                              float(np.clip(look.dark_fraction + (real_dark - dark), 0.0, 0.8)), look.roughness_m)
-        calibration = dataclasses.replace(calibration, seabed=SeabedTerms(
-            _fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.dark_fraction),
-            _fixed(look.roughness_m)))
+        look = _match_seabed(calibration, chain, look, (real_contrast, real_scale_rows, real_dark), n, seed)
+        calibration = dataclasses.replace(calibration, seabed=_fixed_seabed(look))
         say(f"seabed: contrast {look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, "
             f"dark {look.dark_fraction:.2f}")
         clean = [calibrated_view(calibration, seed, i)[0] for i in range(n)]
@@ -395,7 +460,12 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     # the catalogue's, which the fingerprint search can steer); target highlight and residual gain under it
     if config.texture:
         calibration = dataclasses.replace(calibration, texture=fit_texture(images, config.seed))
-        say("texture: the recording's speckle fitted (sim/texture.py)")
+        # the texture's grain differs from the catalogue speckle's (long along range at dark levels), which
+        # changes the measured patchiness: the seabed look matched again under it
+        look = _match_seabed(calibration, chain, look, (real_contrast, real_scale_rows, real_dark), n, seed)
+        calibration = dataclasses.replace(calibration, seabed=_fixed_seabed(look))
+        say(f"texture: the recording's speckle fitted (sim/texture.py); seabed under it: contrast "
+            f"{look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, dark {look.dark_fraction:.2f}")
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
     for _ in range(2):
         sim_highlight = _sim_highlight(calibration, chain, n, seed)
@@ -404,7 +474,15 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
             calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
                 calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
     say(f"targets: {calibration.targets}")
+    mounting_bins, real_headroom = _sim_bins(calibration, config.mounting_frames, seed), _headroom(images)
     for _ in range(2):
+        # the mounting once more under the final chain, texture, export and gain, on more frames: the onset's
+        # median and its spread over frames
+        if onset_measured:
+            sim_onsets = _frame_onsets(_sim_images(calibration, chain, config.mounting_frames, seed), mounting_bins)
+            calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=True)
+        # with the residual gain in place, as a range gain can saturate a band the chain alone does not
+        calibration, chain = _match_headroom(calibration, chain, real_headroom, config.mounting_frames, seed)
         sim_fp = fingerprint(_sim_images(calibration, chain, n, seed))
         range_db = np.clip(np.array(calibration.range_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS,
                                                                               "range"), -12, 12)
@@ -412,6 +490,10 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         bearing_db = np.clip(bearing_db - bearing_db.mean(), -12, 12)
         calibration = dataclasses.replace(calibration, range_gain_db=tuple(round(float(v), 2) for v in range_db),
                                           bearing_gain_db=tuple(round(float(v), 2) for v in bearing_db))
+    m = calibration.mounting
+    say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
+        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; output gain {calibration.effects['gamma_quantization']['gain']:.3f}"
+        " (the seabed's headroom below the brightest level as in the recording)")
 
     # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
     fitted = _effect_intervals(clean, chain, images, config, rng, log)
