@@ -12,7 +12,7 @@ import pytest
 from sonar_realism.errors import ConfigError
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
 from sonar_realism.sim.calibration import load_calibration, save_calibration
-from sonar_realism.sim.texture import fit_texture, local_mean
+from sonar_realism.sim.texture import fit_row_gain, fit_texture, local_mean
 from tests.test_sim_calibrate import truth
 
 
@@ -75,3 +75,48 @@ def test_texture_round_trips_through_calib_json_and_bad_tables_are_refused(textu
         load_calibration(path)
     with pytest.raises(ConfigError, match="64 x 64"):
         fit_texture([np.ones((32, 32), np.float32)])
+
+
+def row_gain_frames(gain_sd: float, n: int = 12, seed: int = 0) -> list[np.ndarray]:
+    """Frames whose every range row carries one gain across all beams (log-normal, `gain_sd`), over speckle."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(n):
+        image = rng.gamma(1.0, 1.0, (200, 128)) * np.exp(gain_sd * rng.standard_normal(200))[:, None]
+        frames.append((image / image.max()).astype(np.float32))
+    return frames
+
+
+def test_row_gain_fit_keeps_only_the_gain_the_whole_fan_shares() -> None:
+    """Speckle averaged over a row moves its mean too (~9 % here); the fit keeps the shared gain alone."""
+    for true_sd in (0.0, 0.05, 0.15):
+        table = np.asarray(fit_row_gain(row_gain_frames(true_sd)))
+        spread = (np.interp(0.84, np.linspace(0.005, 0.995, table.size), table)
+                  - np.interp(0.16, np.linspace(0.005, 0.995, table.size), table)) / 2
+        assert spread == pytest.approx(true_sd, abs=0.02), (true_sd, spread)
+
+
+def test_row_gain_draws_lines_across_the_fan_and_old_files_without_it_still_load(texture, tmp_path) -> None:
+    with_rows = dataclasses.replace(texture, row_gain_log_quantiles=fit_row_gain(row_gain_frames(0.15)))
+    calibration = dataclasses.replace(truth(), texture=with_rows)
+    clean, _ = calibrated_view(calibration, 0, 0)
+    chain = calibrated_chain(calibration, "all")
+
+    def row_means(texture_used) -> np.ndarray:
+        frame = finish(dataclasses.replace(calibration, texture=texture_used), clean, chain, np.random.default_rng(1))
+        return frame.intensity.astype(np.float64).mean(axis=1)
+
+    # same seed, so the same speckle: the rows differ by their drawn gain alone, one gain per row
+    plain, lined = row_means(texture), row_means(with_rows)
+    lit = plain > 20
+    assert np.std(np.log(lined[lit] / plain[lit])) == pytest.approx(0.15, abs=0.05)
+    path = tmp_path / "calib.json"
+    save_calibration(dataclasses.replace(truth(), texture=texture), path)
+    data = json.loads(path.read_text())
+    del data["texture"]["row_gain_log_quantiles"]  # a file fitted before the row gain existed
+    path.write_text(json.dumps(data))
+    assert load_calibration(path).texture.row_gain_log_quantiles == ()
+    data["texture"]["row_gain_log_quantiles"] = [0.1, 0.0]
+    path.write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match="row_gain_log_quantiles"):
+        load_calibration(path)

@@ -9,11 +9,18 @@ of the 128 x 128 model grid, the level the cDFCVAE learns), as a level-binned qu
 kernel. `simulate --calibration` then draws the simulated frame's texture from that fit in place of the
 `speckle` effect, on the output level (after the output mapping): the simulated mean level, the sensor's
 speckle on top, exported as the recording was.
+
+A real sensor also varies its gain from range sample to range sample, the same across every beam of a ping
+(on the Oculus set about 2.7 % rms, with bright lines in its upper tail: several per frame). The fit keeps the
+part of each row mean's deviation that both halves of the fan share (the rest is speckle averaged over the
+row, which the simulated speckle brings itself) as a quantile table, and each simulated row draws its gain
+from it.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -31,6 +38,8 @@ MODEL_GRID = 128  # the local mean is the level on a 128 x 128 grid, the cDFCVAE
 MIN_BLUR = 2.0  # samples
 FIT_FRAMES = 96  # frames the fit uses, evenly spaced over the recording
 REPLACES = ("speckle",)  # the catalogue effects the fitted texture stands in for
+ROW_GAIN_QUANTILES = 33  # of log row gain, at evenly spaced probabilities from 0.5 % to 99.5 %
+ROW_BASE_ROWS = 15  # a row's expected mean: the median of the row means this many rows around it
 
 
 @dataclass(frozen=True)
@@ -41,6 +50,8 @@ class SensorTexture:
     level_edges: tuple[float, ...]
     ratio_quantiles: tuple[tuple[float, ...], ...]
     kernel: tuple[tuple[tuple[float, ...], ...], ...]
+    # log gain of one range row across all beams, quantiles (empty: no row gain, as in files fitted before it)
+    row_gain_log_quantiles: tuple[float, ...] = ()
 
     def validate(self) -> None:
         shapes = {"level_edges": ((LEVEL_BINS - 1,), np.asarray(self.level_edges, dtype=np.float64)),
@@ -51,6 +62,11 @@ class SensorTexture:
                 raise ConfigError(f"texture.{name}: expected {shape} finite numbers, got shape {values.shape}")
         if (np.diff(shapes["ratio_quantiles"][1], axis=1) < 0).any():
             raise ConfigError("texture.ratio_quantiles: each row must be non-decreasing")
+        rows = np.asarray(self.row_gain_log_quantiles, dtype=np.float64)
+        if rows.size not in (0, ROW_GAIN_QUANTILES) or not np.isfinite(rows).all() or (np.diff(rows) < 0).any() \
+                or (np.abs(rows) > 2.0).any():
+            raise ConfigError(f"texture.row_gain_log_quantiles: expected none or {ROW_GAIN_QUANTILES} non-decreasing "
+                              f"finite numbers within +-2, got {rows.size}")
 
 
 @functools.lru_cache(maxsize=4)
@@ -76,6 +92,42 @@ def _rounded(values: np.ndarray) -> tuple:
     return tuple(_rounded(row) for row in values)
 
 
+def _running_median(values: np.ndarray) -> np.ndarray:
+    half = ROW_BASE_ROWS // 2
+    padded = np.pad(values, half, mode="edge")
+    return np.median(np.lib.stride_tricks.sliding_window_view(padded, ROW_BASE_ROWS), axis=1)
+
+
+def _row_deviation(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(log of each row's mean over its expected mean, rows where that is defined) of [ranges, beams]."""
+    means = image.mean(axis=1)
+    base = _running_median(means)
+    rows = base > 0.02  # black water: no gain to see
+    return np.log(np.maximum(means[rows], 1e-4) / base[rows]), rows
+
+
+def fit_row_gain(images: list[np.ndarray]) -> tuple[float, ...]:
+    """Quantiles of the log row gain shared across the fan: the row means' deviations, shrunk about their
+    median to the share that the fan's two halves have in common (their covariance over the whole row's
+    variance)."""
+    whole, left, right = [], [], []
+    for image in images:
+        half = image.shape[1] // 2
+        deviation, rows = _row_deviation(image)
+        whole.append(deviation)
+        for side, part in ((left, image[:, :half]), (right, image[:, half:])):
+            means = part.mean(axis=1)
+            base = np.maximum(_running_median(means), 1e-3)
+            side.append(np.log(np.maximum(means[rows], 1e-4) / base[rows]))
+    deviations, shared = np.concatenate(whole), np.cov(np.concatenate(left), np.concatenate(right))[0, 1]
+    if deviations.size < 2 * ROW_GAIN_QUANTILES or deviations.var() <= 0:
+        return ()
+    quantiles = np.quantile(deviations, np.linspace(0.005, 0.995, ROW_GAIN_QUANTILES))
+    centre = float(np.median(deviations))
+    shrink = math.sqrt(float(np.clip(shared / deviations.var(), 0.0, 1.0)))
+    return _rounded(centre + (quantiles - centre) * shrink - centre)
+
+
 def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     """Fit on real frames scaled to their maximum, [ranges, beams] at the sensor's resolution."""
     usable = [image for image in images if min(image.shape) >= TILE]
@@ -84,7 +136,8 @@ def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     chosen = [usable[i] for i in np.linspace(0, len(usable) - 1, min(FIT_FRAMES, len(usable))).astype(int)]
     edges, table, kernel = fit_speckle([image.astype(np.float32) for image in chosen],
                                        [local_mean(image) for image in chosen], seed=seed)
-    texture = SensorTexture(_rounded(edges), _rounded(np.maximum.accumulate(table, axis=1)), _rounded(kernel))
+    texture = SensorTexture(_rounded(edges), _rounded(np.maximum.accumulate(table, axis=1)), _rounded(kernel),
+                            fit_row_gain(chosen))
     texture.validate()
     return texture
 
@@ -98,4 +151,9 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     level = local_mean(level / max(float(level.max()), 1e-12))
     generator = torch.Generator().manual_seed(int(rng.integers(0, 2 ** 62)))
     sample = _speckle_field(texture).sample(level[None], generator)[0]
+    if texture.row_gain_log_quantiles:
+        table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
+        draws = np.interp(rng.random(sample.shape[0]), np.linspace(0.0, 1.0, table.size), table)
+        sample = sample * np.exp(draws).astype(np.float32)[:, None]
+        sample = sample / max(float(sample.max()), 1e-12)
     return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
