@@ -13,11 +13,14 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
 3. the seabed: patch contrast, correlation length and dark share of the mean level, matched by simulation;
    targets: how often a long shadow shows, its width (the target's size) and where it starts;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
-   the calibrated setting (fingerprint in sim/fingerprint.py), then a residual range/bearing gain;
-5. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
-   short local search from the fit), 5th-95th percentiles;
-6. the texture: the recording's own speckle (sim/texture.py), which simulation draws in place of the
-   catalogue's speckle and output mapping.
+   the calibrated setting (fingerprint in sim/fingerprint.py);
+5. the texture: the recording's own speckle and row gain (sim/texture.py), which simulation draws in place of
+   the catalogue's speckle; the seabed look matched again under it;
+6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
+   output mapping's gain (the seabed's headroom below the frame's brightest level), the residual range/bearing
+   gain;
+7. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
+   short local search from the fit), 5th-95th percentiles.
 """
 
 from __future__ import annotations
