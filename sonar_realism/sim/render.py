@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sonar_realism.sim.scene import MATERIAL_NAMES, MATERIALS, Pose, Primitive, Scene
+from sonar_realism.sim.scene import MATERIAL_NAMES, MATERIALS, Pose, Primitive, Scene, Seabed
 from sonar_realism.sim.sensor import SensorConfig
 
 # Power of flat sand at 15 deg grazing incidence maps to amplitude 0.35.
@@ -102,8 +102,50 @@ def render(scene: Scene, pose: Pose, sensor: SensorConfig) -> tuple[np.ndarray, 
 # ----------------------------------------------------------------------------------------------- seabed
 
 
+def _seabed_rows(seabed: Seabed, height_m: float, tilt: float, ranges: np.ndarray, azimuths: np.ndarray,
+                 half_aperture: float) -> tuple[int, int]:
+    """Range rows [first, last) outside which no beam can see the seabed from this height and tilt.
+
+    A pixel sees the seabed when its elevation phi = delta + asin(q), q = (ground - height) / (r * norm), lies in
+    the aperture; with the ground anywhere between the seabed's lowest and highest point that bounds r per beam.
+    Rows outside carry no seabed power, so they are not computed. Bounds are widened by a margin far beyond the
+    float32 round-off of the per-pixel test; geometries the bound does not cover (sonar not above every point of
+    the seabed, tilt near vertical) keep every row.
+    """
+    low, high = seabed.height_range
+    n_ranges = ranges.size
+    ct, st = math.cos(tilt), math.sin(tilt)
+    b = np.cos(azimuths) * st
+    delta = np.arctan2(b, ct)
+    if height_m <= high or ct <= 0.0 or float(delta.min()) - half_aperture <= -math.pi / 2 + 1e-3:
+        return 0, n_ranges
+    norm = np.sqrt(ct * ct + b * b)
+    # phi >= -half_aperture needs q >= sin(-half_aperture - delta); phi <= half_aperture needs q <= sin(half - delta)
+    q_low = np.sin(np.maximum(-half_aperture - delta, -math.pi / 2))
+    q_high = np.sin(np.minimum(half_aperture - delta, math.pi / 2))
+    with np.errstate(divide="ignore"):
+        near = np.where(q_low < 0, (height_m - high) / (norm * -q_low), np.inf)
+        far = np.where(q_high < 0, (height_m - low) / (norm * -q_high), np.inf)
+    margin = 1e-3 * (ranges[-1] - ranges[0]) + 2 * (ranges[-1] - ranges[0]) / max(n_ranges - 1, 1)
+    first = int(np.searchsorted(ranges, float(near.min()) * (1 - 1e-3) - margin))
+    last = int(np.searchsorted(ranges, float(far.max()) * (1 + 1e-3) + margin, side="right"))
+    return min(first, n_ranges), max(min(last, n_ranges), min(first, n_ranges))
+
+
 def _seabed_power(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: np.ndarray, ranges: np.ndarray,
                   sensor: SensorConfig, hit_t: np.ndarray) -> np.ndarray:
+    """Seabed power [n_ranges, n_beams], computed on the rows where the seabed can be in view (zero elsewhere)."""
+    half_aperture = math.radians(sensor.vertical_fov_deg) / 2
+    first, last = _seabed_rows(scene.seabed, float(origin[2]), pose_tilt(axes), ranges, azimuths, half_aperture)
+    power = np.zeros((ranges.size, azimuths.size), dtype=np.float32)
+    if last > first:
+        power[first:last] = _seabed_band(scene, origin, axes, azimuths, ranges[first:last], sensor, hit_t)
+    return power
+
+
+def _seabed_band(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: np.ndarray, ranges: np.ndarray,
+                 sensor: SensorConfig, hit_t: np.ndarray) -> np.ndarray:
+    """Seabed power on the rows at `ranges` (solved per pixel; shadows from the object rays' hits)."""
     seabed = scene.seabed
     r = ranges.astype(np.float32)[:, None]
     cos_t = np.cos(azimuths).astype(np.float32)[None, :]
@@ -187,7 +229,11 @@ def _reference_fill() -> float:
 
 def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables: _SensorTables,
                       sensor: SensorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest object hit per (elevation, beam) ray: distance (inf = none), world normal, material, object id."""
+    """Nearest object hit per (elevation, beam) ray: distance (inf = none), world normal, material, object id.
+
+    Distances are tested primitive by primitive on the rays near its bounding sphere; normals are computed
+    once, on the rays each primitive finally wins (the same intersection, run on those rays only).
+    """
     azimuths, elevations = tables.azimuths, tables.elevations
     n_el, n_beams = elevations.size, azimuths.size
     hit_t = np.full((n_el, n_beams), np.inf, dtype=np.float64)
@@ -200,34 +246,29 @@ def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables
     beam_margin = float(np.max(np.diff(azimuths))) if n_beams > 1 else math.pi
     el_step = float(elevations[1] - elevations[0]) if n_el > 1 else math.pi
 
-    for prim in scene.primitives:
-        local_center = axes.T @ (prim.bounding_center - origin)
-        distance = float(np.linalg.norm(local_center))
-        radius = prim.bounding_radius
-        if distance - radius > sensor.max_range_m or distance + radius < sensor.min_range_m:
+    winner = np.full((n_el, n_beams), -1, dtype=np.int16)  # index of the primitive each ray hits first
+    windows: list[tuple[slice, slice]] = []
+    for index, prim in enumerate(scene.primitives):
+        window = _ray_window(prim, origin, axes, azimuths, elevations, beam_margin, el_step, sensor)
+        windows.append(window)
+        if window is None:
             continue
-        if distance <= radius:
-            beams, rows = slice(0, n_beams), slice(0, n_el)
-        else:
-            spread = math.asin(radius / distance)
-            bearing = math.atan2(-local_center[1], local_center[0])
-            elevation = math.asin(local_center[2] / distance)
-            widen = spread / max(math.cos(abs(elevation) + spread), 0.05) if abs(elevation) + spread < 1.5 else math.pi
-            b0, b1 = np.searchsorted(azimuths, [bearing - widen - beam_margin, bearing + widen + beam_margin])
-            e0, e1 = np.searchsorted(elevations, [elevation - spread - el_step, elevation + spread + el_step])
-            if b0 >= b1 or e0 >= e1:
-                continue
-            beams, rows = slice(int(b0), int(b1)), slice(int(e0), int(e1))
-        d = directions[rows, beams]
-        t, normal = intersect(prim, origin, d)
-        current = hit_t[rows, beams]
+        t = hit_distance(prim, origin, directions[window])
+        current = hit_t[window]
         better = t < current
-        if not better.any():
-            continue
         current[better] = t[better]
-        hit_normal[rows, beams][better] = normal[better]
-        hit_material[rows, beams][better] = MATERIAL_NAMES.index(prim.material)
-        hit_object[rows, beams][better] = prim.object_id
+        winner[window][better] = index
+
+    for index, prim in enumerate(scene.primitives):
+        window = windows[index]
+        if window is None:
+            continue
+        won = winner[window] == index
+        if not won.any():
+            continue
+        hit_normal[window][won] = intersect(prim, origin, directions[window][won])[1]
+        hit_material[window][won] = MATERIAL_NAMES.index(prim.material)
+        hit_object[window][won] = prim.object_id
 
     # hits below the seabed are buried parts of objects: they neither return nor cast shadows
     hit = np.isfinite(hit_t)
@@ -238,6 +279,27 @@ def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables
         idx = np.nonzero(hit)
         hit_t[idx[0][buried], idx[1][buried]] = np.inf
     return hit_t, hit_normal, hit_material, hit_object
+
+
+def _ray_window(prim: Primitive, origin: np.ndarray, axes: np.ndarray, azimuths: np.ndarray, elevations: np.ndarray,
+                beam_margin: float, el_step: float, sensor: SensorConfig) -> tuple[slice, slice] | None:
+    """(elevation rows, beams) of the rays that can reach the primitive's bounding sphere; None when none can."""
+    local_center = axes.T @ (prim.bounding_center - origin)
+    distance = float(np.linalg.norm(local_center))
+    radius = prim.bounding_radius
+    if distance - radius > sensor.max_range_m or distance + radius < sensor.min_range_m:
+        return None
+    if distance <= radius:
+        return slice(0, elevations.size), slice(0, azimuths.size)
+    spread = math.asin(radius / distance)
+    bearing = math.atan2(-local_center[1], local_center[0])
+    elevation = math.asin(local_center[2] / distance)
+    widen = spread / max(math.cos(abs(elevation) + spread), 0.05) if abs(elevation) + spread < 1.5 else math.pi
+    b0, b1 = np.searchsorted(azimuths, [bearing - widen - beam_margin, bearing + widen + beam_margin])
+    e0, e1 = np.searchsorted(elevations, [elevation - spread - el_step, elevation + spread + el_step])
+    if b0 >= b1 or e0 >= e1:
+        return None
+    return slice(int(e0), int(e1)), slice(int(b0), int(b1))
 
 
 def _add_object_power(power: np.ndarray, mask: np.ndarray, hit_t: np.ndarray, hit_normal: np.ndarray,
@@ -269,30 +331,42 @@ def _add_object_power(power: np.ndarray, mask: np.ndarray, hit_t: np.ndarray, hi
 
 
 def _splat(power: np.ndarray, start: np.ndarray, end: np.ndarray, beam: np.ndarray, total: np.ndarray) -> None:
-    """Add `total` spread uniformly over range-bin coordinates [start, end) of each beam (bin k spans [k, k+1))."""
-    n_ranges, n_beams = power.shape
+    """Add `total` spread uniformly over range-bin coordinates [start, end) of each beam (bin k spans [k, k+1)).
+
+    The sums run on the box of beams the rays hit, from their nearest bin to the last (the running sum along
+    range carries its round-off to the end of each column): the same numbers as over the whole grid, a
+    fraction of the passes.
+    """
+    n_ranges = power.shape[0]
     density = total / (end - start)
     first, last = np.floor(start).astype(np.int64), np.floor(end).astype(np.int64)
+    top = int(np.clip(first.min(), 0, n_ranges))
+    beam_lo = int(beam.min())
+    box_beams = int(beam.max()) + 1 - beam_lo
+    box_rows = n_ranges - top
+    col = beam - beam_lo
     same = first == last
     split = ~same
     # (range bins, beams, power): elements inside one bin, then the partial first and last bins of the others
-    parts = [(first[same], beam[same], total[same]),
-             (first[split], beam[split], density[split] * (first[split] + 1 - start[split])),
-             (last[split], beam[split], density[split] * (end[split] - last[split]))]
-    flat = np.zeros(n_ranges * n_beams, dtype=np.float64)
+    parts = [(first[same], col[same], total[same]),
+             (first[split], col[split], density[split] * (first[split] + 1 - start[split])),
+             (last[split], col[split], density[split] * (end[split] - last[split]))]
+    flat = np.zeros(box_rows * box_beams, dtype=np.float64)
     for rows, cols, weight in parts:
-        inside = (rows >= 0) & (rows < n_ranges)
-        flat += np.bincount(rows[inside] * n_beams + cols[inside], weights=weight[inside], minlength=flat.size)
+        inside = (rows >= top) & (rows < n_ranges)
+        flat += np.bincount((rows[inside] - top) * box_beams + cols[inside], weights=weight[inside],
+                            minlength=flat.size)
     # whole bins strictly between first and last: a difference array along range, then a cumulative sum
     middle = split & (last > first + 1)
     if middle.any():
-        diff = np.zeros((n_ranges + 1) * n_beams, dtype=np.float64)
-        lo = np.clip(first[middle] + 1, 0, n_ranges)
-        hi = np.clip(last[middle], 0, n_ranges)
-        diff += np.bincount(lo * n_beams + beam[middle], weights=density[middle], minlength=diff.size)
-        diff -= np.bincount(hi * n_beams + beam[middle], weights=density[middle], minlength=diff.size)
-        flat += np.cumsum(diff.reshape(n_ranges + 1, n_beams), axis=0)[:n_ranges].reshape(-1)
-    power += np.maximum(flat, 0.0).reshape(power.shape).astype(np.float32)  # cumsum round-off can dip below 0
+        diff = np.zeros((box_rows + 1) * box_beams, dtype=np.float64)
+        lo = np.clip(first[middle] + 1, top, n_ranges) - top
+        hi = np.clip(last[middle], top, n_ranges) - top
+        diff += np.bincount(lo * box_beams + col[middle], weights=density[middle], minlength=diff.size)
+        diff -= np.bincount(hi * box_beams + col[middle], weights=density[middle], minlength=diff.size)
+        flat += np.cumsum(diff.reshape(box_rows + 1, box_beams), axis=0)[:box_rows].reshape(-1)
+    # cumsum round-off can dip below 0
+    power[top:, beam_lo:beam_lo + box_beams] += np.maximum(flat, 0.0).reshape(box_rows, box_beams).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------- ray tests
@@ -312,7 +386,15 @@ def intersect(prim: Primitive, origin: np.ndarray, directions: np.ndarray) -> tu
     return t, n_local @ rot.T
 
 
-def _ellipsoid(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def hit_distance(prim: Primitive, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """intersect()'s distances alone (an ellipsoid's are found without its normals)."""
+    if prim.kind != "ellipsoid":
+        return intersect(prim, origin, directions)[0]
+    rot = prim.rotation
+    return _ellipsoid_distance(rot.T @ (origin - np.asarray(prim.center)), directions @ rot, np.asarray(prim.size))
+
+
+def _ellipsoid_distance(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
     os_, ds = o / semi_axes, d / semi_axes
     a = (ds * ds).sum(-1)
     b = 2 * (ds * os_).sum(-1)
@@ -320,7 +402,11 @@ def _ellipsoid(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> tuple[np.
     disc = b * b - 4 * a * c
     root = np.sqrt(np.maximum(disc, 0))
     t = (-b - root) / (2 * a)
-    t = np.where((disc >= 0) & (t > 0), t, np.inf)
+    return np.where((disc >= 0) & (t > 0), t, np.inf)
+
+
+def _ellipsoid(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = _ellipsoid_distance(o, d, semi_axes)
     point = o + d * np.where(np.isfinite(t), t, 0)[..., None]
     normal = point / semi_axes ** 2
     return t, normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
