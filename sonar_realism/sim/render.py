@@ -231,8 +231,9 @@ def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables
                       sensor: SensorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nearest object hit per (elevation, beam) ray: distance (inf = none), world normal, material, object id.
 
-    Distances are tested primitive by primitive on the rays near its bounding sphere; normals are computed
-    once, on the rays each primitive finally wins (the same intersection, run on those rays only).
+    Each primitive is tested on the rays near its bounding sphere. Ellipsoids (most primitives: tyre segments,
+    stalks, rocks) are tested all together in one vectorised pass over every (ray, ellipsoid) pair; the nearest
+    hit per ray wins (the earlier primitive on a tie), and normals are computed for the winners only.
     """
     azimuths, elevations = tables.azimuths, tables.elevations
     n_el, n_beams = elevations.size, azimuths.size
@@ -243,63 +244,125 @@ def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables
     if not scene.primitives:
         return hit_t, hit_normal, hit_material, hit_object
     directions = tables.ray_dirs @ axes.T  # world, [E, B, 3]
-    beam_margin = float(np.max(np.diff(azimuths))) if n_beams > 1 else math.pi
-    el_step = float(elevations[1] - elevations[0]) if n_el > 1 else math.pi
+    ray_ids = np.arange(n_el * n_beams).reshape(n_el, n_beams)
 
-    winner = np.full((n_el, n_beams), -1, dtype=np.int16)  # index of the primitive each ray hits first
-    windows: list[tuple[slice, slice]] = []
-    for index, prim in enumerate(scene.primitives):
-        window = _ray_window(prim, origin, axes, azimuths, elevations, beam_margin, el_step, sensor)
-        windows.append(window)
+    others: list[tuple[int, np.ndarray, np.ndarray]] = []  # (primitive, ray ids, distances) of non-ellipsoids
+    ellipsoids = _EllipsoidPairs(origin)
+    for index, window in enumerate(_ray_windows(scene.primitives, origin, axes, tables, sensor)):
         if window is None:
             continue
-        t = hit_distance(prim, origin, directions[window])
-        current = hit_t[window]
-        better = t < current
-        current[better] = t[better]
-        winner[window][better] = index
+        prim = scene.primitives[index]
+        if prim.kind == "ellipsoid":
+            ellipsoids.add(prim, index, ray_ids[window].ravel(), directions[window])
+        else:
+            others.append((index, ray_ids[window].ravel(), intersect(prim, origin, directions[window])[0].ravel()))
+    pairs = ellipsoids.intersect()
+    rays = np.concatenate([pairs.rays] + [o[1] for o in others])
+    distances = np.concatenate([pairs.t] + [o[2] for o in others])
+    owners = np.concatenate([pairs.owners] + [np.full(o[1].size, o[0], dtype=np.int32) for o in others])
+    candidates = np.flatnonzero(np.isfinite(distances))
+    if candidates.size == 0:
+        return hit_t, hit_normal, hit_material, hit_object
+    candidates = candidates[np.lexsort((owners[candidates], distances[candidates], rays[candidates]))]
+    sorted_rays = rays[candidates]
+    winners = candidates[np.r_[True, sorted_rays[1:] != sorted_rays[:-1]]]  # first (nearest) candidate per ray
+    hit_t.reshape(-1)[rays[winners]] = distances[winners]
 
-    for index, prim in enumerate(scene.primitives):
-        window = windows[index]
-        if window is None:
-            continue
-        won = winner[window] == index
-        if not won.any():
-            continue
-        hit_normal[window][won] = intersect(prim, origin, directions[window][won])[1]
-        hit_material[window][won] = MATERIAL_NAMES.index(prim.material)
-        hit_object[window][won] = prim.object_id
+    flat_normal = hit_normal.reshape(-1, 3)
+    flat_dirs = directions.reshape(-1, 3)
+    won_pairs = winners[winners < pairs.rays.size]
+    local_normals = pairs.local_normals(won_pairs)
+    for index in np.unique(owners[winners]):
+        prim = scene.primitives[int(index)]
+        ids = rays[winners[owners[winners] == index]]
+        if prim.kind == "ellipsoid":
+            flat_normal[ids] = local_normals[pairs.owners[won_pairs] == index] @ prim.rotation.T
+        else:
+            flat_normal[ids] = intersect(prim, origin, flat_dirs[ids])[1]
+        hit_material.reshape(-1)[ids] = MATERIAL_NAMES.index(prim.material)
+        hit_object.reshape(-1)[ids] = prim.object_id
 
     # hits below the seabed are buried parts of objects: they neither return nor cast shadows
     hit = np.isfinite(hit_t)
-    if hit.any():
-        points = origin + directions[hit] * hit_t[hit][:, None]
-        ground = scene.seabed.height_at(points[None, :, 0], points[None, :, 1])[0]
-        buried = points[:, 2] < ground - 0.02
-        idx = np.nonzero(hit)
-        hit_t[idx[0][buried], idx[1][buried]] = np.inf
+    points = origin + directions[hit] * hit_t[hit][:, None]
+    ground = scene.seabed.height_at(points[None, :, 0], points[None, :, 1])[0]
+    buried = points[:, 2] < ground - 0.02
+    idx = np.nonzero(hit)
+    hit_t[idx[0][buried], idx[1][buried]] = np.inf
     return hit_t, hit_normal, hit_material, hit_object
 
 
-def _ray_window(prim: Primitive, origin: np.ndarray, axes: np.ndarray, azimuths: np.ndarray, elevations: np.ndarray,
-                beam_margin: float, el_step: float, sensor: SensorConfig) -> tuple[slice, slice] | None:
-    """(elevation rows, beams) of the rays that can reach the primitive's bounding sphere; None when none can."""
-    local_center = axes.T @ (prim.bounding_center - origin)
-    distance = float(np.linalg.norm(local_center))
-    radius = prim.bounding_radius
-    if distance - radius > sensor.max_range_m or distance + radius < sensor.min_range_m:
-        return None
-    if distance <= radius:
-        return slice(0, elevations.size), slice(0, azimuths.size)
-    spread = math.asin(radius / distance)
-    bearing = math.atan2(-local_center[1], local_center[0])
-    elevation = math.asin(local_center[2] / distance)
-    widen = spread / max(math.cos(abs(elevation) + spread), 0.05) if abs(elevation) + spread < 1.5 else math.pi
-    b0, b1 = np.searchsorted(azimuths, [bearing - widen - beam_margin, bearing + widen + beam_margin])
-    e0, e1 = np.searchsorted(elevations, [elevation - spread - el_step, elevation + spread + el_step])
-    if b0 >= b1 or e0 >= e1:
-        return None
-    return slice(int(e0), int(e1)), slice(int(b0), int(b1))
+def _ray_windows(primitives: tuple[Primitive, ...], origin: np.ndarray, axes: np.ndarray, tables: _SensorTables,
+                 sensor: SensorConfig) -> list[tuple[slice, slice] | None]:
+    """Per primitive, the (elevation rows, beams) of the rays that can reach its bounding sphere; None if none can."""
+    azimuths, elevations = tables.azimuths, tables.elevations
+    beam_margin = float(np.max(np.diff(azimuths))) if azimuths.size > 1 else math.pi
+    el_step = float(elevations[1] - elevations[0]) if elevations.size > 1 else math.pi
+    local = (np.array([p.bounding_center for p in primitives]) - origin) @ axes  # sonar frame, [P, 3]
+    distance = np.linalg.norm(local, axis=1)
+    radius = np.array([p.bounding_radius for p in primitives])
+    in_range = (distance - radius <= sensor.max_range_m) & (distance + radius >= sensor.min_range_m)
+    outside = distance > radius
+    safe = np.where(outside, distance, 1.0)
+    spread = np.arcsin(np.where(outside, radius / safe, 0.0))
+    bearing = np.arctan2(-local[:, 1], local[:, 0])
+    elevation = np.arcsin(np.clip(local[:, 2] / safe, -1.0, 1.0))
+    edge = np.abs(elevation) + spread
+    widen = np.where(edge < 1.5, spread / np.maximum(np.cos(edge), 0.05), math.pi)
+    b0 = np.searchsorted(azimuths, bearing - widen - beam_margin)
+    b1 = np.searchsorted(azimuths, bearing + widen + beam_margin)
+    e0 = np.searchsorted(elevations, elevation - spread - el_step)
+    e1 = np.searchsorted(elevations, elevation + spread + el_step)
+    windows: list[tuple[slice, slice] | None] = []
+    for k in range(len(primitives)):
+        if not in_range[k] or (outside[k] and (b0[k] >= b1[k] or e0[k] >= e1[k])):
+            windows.append(None)
+        elif not outside[k]:  # the sonar is inside the bounding sphere: every ray
+            windows.append((slice(0, elevations.size), slice(0, azimuths.size)))
+        else:
+            windows.append((slice(int(e0[k]), int(e1[k])), slice(int(b0[k]), int(b1[k]))))
+    return windows
+
+
+class _EllipsoidPairs:
+    """(ray, ellipsoid) pairs gathered primitive by primitive, then intersected in one vectorised pass.
+
+    The arithmetic per pair is intersect()'s for an ellipsoid, so distances and normals are the same numbers.
+    """
+
+    def __init__(self, origin: np.ndarray) -> None:
+        self.origin = origin
+        self._rays: list[np.ndarray] = []
+        self._dirs: list[np.ndarray] = []
+        self._origins: list[np.ndarray] = []
+        self._semi_axes: list[np.ndarray] = []
+        self._owners: list[int] = []
+
+    def add(self, prim: Primitive, index: int, rays: np.ndarray, directions: np.ndarray) -> None:
+        self._rays.append(rays)
+        self._dirs.append((directions @ prim.rotation).reshape(-1, 3))  # local frame
+        self._origins.append(prim.rotation.T @ (self.origin - np.asarray(prim.center)))
+        self._semi_axes.append(np.asarray(prim.size))
+        self._owners.append(index)
+
+    def intersect(self) -> _EllipsoidPairs:
+        """Distance to the first hit per pair (inf = none): fills rays, t, owners."""
+        counts = [r.size for r in self._rays]
+        self.rays = np.concatenate(self._rays) if counts else np.zeros(0, dtype=np.int64)
+        self.owners = np.repeat(np.array(self._owners, dtype=np.int32), counts)
+        self.dirs = np.concatenate(self._dirs) if counts else np.zeros((0, 3))
+        semi_axes = np.array(self._semi_axes).reshape(-1, 3)
+        scaled_origins = np.array(self._origins).reshape(-1, 3) / semi_axes
+        self._pair_origins = np.repeat(np.array(self._origins).reshape(-1, 3), counts, axis=0)
+        self._pair_semi_axes = np.repeat(semi_axes, counts, axis=0)
+        self.t = _ellipsoid_distance(np.repeat(scaled_origins, counts, axis=0), self.dirs / self._pair_semi_axes,
+                                     np.repeat([float(o @ o) - 1.0 for o in scaled_origins], counts))
+        return self
+
+    def local_normals(self, pairs: np.ndarray) -> np.ndarray:
+        """Unit normals (ellipsoid frame) at the hits of the given pairs."""
+        return _ellipsoid_local_normal(self._pair_origins[pairs], self.dirs[pairs], self.t[pairs],
+                                       self._pair_semi_axes[pairs])
 
 
 def _add_object_power(power: np.ndarray, mask: np.ndarray, hit_t: np.ndarray, hit_normal: np.ndarray,
@@ -386,30 +449,27 @@ def intersect(prim: Primitive, origin: np.ndarray, directions: np.ndarray) -> tu
     return t, n_local @ rot.T
 
 
-def hit_distance(prim: Primitive, origin: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """intersect()'s distances alone (an ellipsoid's are found without its normals)."""
-    if prim.kind != "ellipsoid":
-        return intersect(prim, origin, directions)[0]
-    rot = prim.rotation
-    return _ellipsoid_distance(rot.T @ (origin - np.asarray(prim.center)), directions @ rot, np.asarray(prim.size))
-
-
-def _ellipsoid_distance(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
-    os_, ds = o / semi_axes, d / semi_axes
-    a = (ds * ds).sum(-1)
-    b = 2 * (ds * os_).sum(-1)
-    c = float(os_ @ os_) - 1.0
-    disc = b * b - 4 * a * c
+def _ellipsoid_distance(scaled_origin: np.ndarray, scaled_dirs: np.ndarray, offset: np.ndarray | float) -> np.ndarray:
+    """Distance along unit rays to a unit sphere, in coordinates scaled by the semi-axes: origin o/s, directions
+    d/s, offset |o/s|^2 - 1 (one ellipsoid, or one per ray)."""
+    a = (scaled_dirs * scaled_dirs).sum(-1)
+    b = 2 * (scaled_dirs * scaled_origin).sum(-1)
+    disc = b * b - 4 * a * offset
     root = np.sqrt(np.maximum(disc, 0))
     t = (-b - root) / (2 * a)
     return np.where((disc >= 0) & (t > 0), t, np.inf)
 
 
 def _ellipsoid(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    t = _ellipsoid_distance(o, d, semi_axes)
-    point = o + d * np.where(np.isfinite(t), t, 0)[..., None]
+    scaled_origin = o / semi_axes
+    t = _ellipsoid_distance(scaled_origin, d / semi_axes, float(scaled_origin @ scaled_origin) - 1.0)
+    return t, _ellipsoid_local_normal(o, d, np.where(np.isfinite(t), t, 0), semi_axes)
+
+
+def _ellipsoid_local_normal(o: np.ndarray, d: np.ndarray, t: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
+    point = o + d * t[..., None]
     normal = point / semi_axes ** 2
-    return t, normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+    return normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
 
 
 def _cylinder(o: np.ndarray, d: np.ndarray, radius: float, length: float) -> tuple[np.ndarray, np.ndarray]:
