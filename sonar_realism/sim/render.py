@@ -197,21 +197,30 @@ def _seabed_band(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: n
     fill = np.minimum(fill * np.float32(1.0 / _reference_fill()), np.float32(_MAX_SEABED_FILL))
     power = backscatter * albedo * fill
 
-    blocked = np.isfinite(hit_t)
-    if blocked.any():
-        # shadows: the object ray at this pixel's (beam, elevation) stopped nearer. Only pixels beyond the nearest
-        # hit (one bin of slack), on the beams some ray hit, can be in one: the test runs on that box alone.
-        beams = np.flatnonzero(blocked.any(axis=0))
-        first_beam, last_beam = int(beams[0]), int(beams[-1]) + 1
-        first_row = int(np.searchsorted(ranges, float(hit_t[blocked].min()) - sensor.range_bin_m))
-        box = (slice(first_row, None), slice(first_beam, last_beam))
-        phi = np.arcsin(np.minimum(np.maximum(sin_p[box], np.float32(-1.0)), np.float32(1.0)))
-        step = 2 * half_aperture / sensor.elevation_rays
-        elevation_index = np.clip(((phi + half_aperture) / step).astype(np.int32), 0, sensor.elevation_rays - 1)
-        blocker = hit_t.astype(np.float32)[elevation_index, np.arange(first_beam, last_beam)[None, :]]
-        visible[box] &= blocker >= r[first_row:] - np.float32(sensor.range_bin_m)
+    _shade(visible, sin_p, r, hit_t, ranges, half_aperture, sensor)
     power *= visible
     return power
+
+
+def _shade(visible: np.ndarray, sin_p: np.ndarray, r: np.ndarray, hit_t: np.ndarray, ranges: np.ndarray,
+           half_aperture: float, sensor: SensorConfig) -> None:
+    """Clear `visible` where the object ray at the pixel's (beam, elevation) stopped nearer (acoustic shadow).
+
+    Only pixels beyond the nearest hit (one bin of slack), on the beams some ray hit, can be in one: the test
+    runs on that box alone.
+    """
+    blocked = np.isfinite(hit_t)
+    if not blocked.any():
+        return
+    beams = np.flatnonzero(blocked.any(axis=0))
+    first_beam, last_beam = int(beams[0]), int(beams[-1]) + 1
+    first_row = int(np.searchsorted(ranges, float(hit_t[blocked].min()) - sensor.range_bin_m))
+    box = (slice(first_row, None), slice(first_beam, last_beam))
+    phi = np.arcsin(np.minimum(np.maximum(sin_p[box], np.float32(-1.0)), np.float32(1.0)))
+    step = 2 * half_aperture / sensor.elevation_rays
+    elevation_index = np.clip(((phi + half_aperture) / step).astype(np.int32), 0, sensor.elevation_rays - 1)
+    blocker = hit_t.astype(np.float32)[elevation_index, np.arange(first_beam, last_beam)[None, :]]
+    visible[box] &= blocker >= r[first_row:] - np.float32(sensor.range_bin_m)
 
 
 def _power_law(cos_inc: np.ndarray, exponent: float) -> np.ndarray:
