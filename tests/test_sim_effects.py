@@ -265,6 +265,39 @@ def test_elevation_spread_is_a_weighting_that_moves_no_energy() -> None:
     assert peak_range == pytest.approx(2.0 / math.sin(math.radians(12.0)), rel=0.05)
 
 
+def _float64_vertical_weight(frame: SonarImage, beamwidth_deg: float, floor_db: float) -> np.ndarray:
+    """The pattern weight as first written: float64 throughout, from seabed_elevation()."""
+    phi = effects_module.seabed_elevation(frame, frame.meta["sonar_altitude_m"], frame.meta["sonar_tilt_rad"])
+    one_way_power = np.sinc(0.886 * np.degrees(phi) / beamwidth_deg) ** 2
+    return np.maximum(one_way_power, 10 ** (floor_db / 20)).astype(np.float32)
+
+
+def test_elevation_spread_weight_in_float32_is_the_float64_pattern_to_5e_6() -> None:
+    x = np.linspace(-1.0, 1.0, 100_001, dtype=np.float32)
+    assert np.abs(effects_module._arcsin32(x) - np.arcsin(x.astype(np.float64))).max() < 3e-7
+    image = np.ones((N_RANGES, N_BEAMS), np.float32)
+    (low_bw, high_bw), (low_floor, high_floor) = ElevationSpread.PARAM_BOUNDS.values()
+    for altitude, tilt in ((2.0, 0.2), (0.5, 0.05), (3.7, 0.6), (12.0, 0.3)):
+        frame = make_frame(image, sonar_altitude_m=altitude, sonar_tilt_rad=tilt)
+        for beamwidth, floor_db in ((16.5, -26.0), (low_bw, low_floor), (high_bw, high_floor), (low_bw, high_floor)):
+            weight = ElevationSpread(beamwidth_deg=beamwidth, floor_db=floor_db).weight(frame)
+            np.testing.assert_allclose(weight, _float64_vertical_weight(frame, beamwidth, floor_db), rtol=0,
+                                       atol=5e-6)
+
+
+def test_elevation_spread_in_float32_leaves_8_bit_frames_as_they_were(monkeypatch) -> None:
+    from sonar_realism.sim import simulate
+    from sonar_realism.sim.sensor import SensorConfig
+
+    sensor = SensorConfig(n_beams=128, n_ranges=256)
+    fast = [frame.intensity for frame, _ in simulate("default", "all", 4, 2, sensor)]
+    monkeypatch.setattr(ElevationSpread, "weight",
+                        lambda self, frame: _float64_vertical_weight(frame, self.beamwidth_deg, self.floor_db))
+    for new, (frame, _) in zip(fast, simulate("default", "all", 4, 2, sensor), strict=True):
+        changed = new.astype(np.int16) - frame.intensity
+        assert np.abs(changed).max() <= 1 and np.count_nonzero(changed) <= 1e-3 * changed.size
+
+
 def test_multipath_adds_energy_only_beyond_the_true_range() -> None:
     image = np.zeros((N_RANGES, N_BEAMS), np.float32)
     image[50, 20:40] = 0.8
