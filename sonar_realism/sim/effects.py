@@ -121,17 +121,10 @@ def _filter_ranges(power: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
 
 def _complex_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Real and imaginary parts, independent N(0, 1) float32, by Box-Muller from one draw of uniforms: radius
-    sqrt(-2 ln(1 - u)) (vectorised cv2.log: half the cost of exponential draws; the float32 uniform's 2^-24 step
-    caps the radius at 5.8, a tail of probability 6e-8), angle 2 pi v."""
-    uniforms = rng.random((2, *shape), dtype=np.float32).reshape(2, -1, shape[-1])
-    radius, angle = uniforms[0], uniforms[1]
-    np.subtract(np.float32(1.0), radius, out=radius)
-    radius = cv2.log(radius, dst=radius)
-    radius *= np.float32(-2.0)
-    np.sqrt(radius, out=radius)
-    angle *= np.float32(2 * math.pi)
-    re, im = cv2.polarToCart(radius, angle)
+    """Real and imaginary parts, independent N(0, 1) float32, by Box-Muller (about twice as fast as normals)."""
+    magnitude = np.sqrt(np.float32(2.0) * rng.standard_exponential(shape, dtype=np.float32))
+    phase = rng.random(shape, dtype=np.float32) * np.float32(2 * math.pi)
+    re, im = cv2.polarToCart(magnitude.reshape(-1, shape[-1]), phase.reshape(-1, shape[-1]))
     return re.reshape(shape), im.reshape(shape)
 
 
