@@ -11,6 +11,8 @@ import multiprocessing
 from collections.abc import Callable, Iterator
 from typing import TypeVar
 
+import cv2
+
 T = TypeVar("T")
 
 _make_frame: Callable[[int], object] | None = None
@@ -29,8 +31,13 @@ def frames_in_parallel(make_frame: Callable[[int], T], n: int, workers: int) -> 
             yield make_frame(index)
         return
     _make_frame = make_frame
+    # one cv2 thread per worker: the workers already fill the cores, and cv2's pool of threads must be down when
+    # forking (a child cannot reconfigure threads it did not inherit)
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
     try:
         with multiprocessing.get_context("fork").Pool(min(workers, n)) as pool:
             yield from pool.imap(_call, range(n), chunksize=2)  # type: ignore[misc]
     finally:
+        cv2.setNumThreads(threads)
         _make_frame = None

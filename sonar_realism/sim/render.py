@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sonar_realism.sim.scene import MATERIAL_NAMES, MATERIALS, Pose, Primitive, Scene
+from sonar_realism.sim.scene import MATERIAL_NAMES, MATERIALS, Pose, Primitive, Scene, Seabed
 from sonar_realism.sim.sensor import SensorConfig
 
 # Power of flat sand at 15 deg grazing incidence maps to amplitude 0.35.
@@ -102,8 +102,50 @@ def render(scene: Scene, pose: Pose, sensor: SensorConfig) -> tuple[np.ndarray, 
 # ----------------------------------------------------------------------------------------------- seabed
 
 
+def _seabed_rows(seabed: Seabed, height_m: float, tilt: float, ranges: np.ndarray, azimuths: np.ndarray,
+                 half_aperture: float) -> tuple[int, int]:
+    """Range rows [first, last) outside which no beam can see the seabed from this height and tilt.
+
+    A pixel sees the seabed when its elevation phi = delta + asin(q), q = (ground - height) / (r * norm), lies in
+    the aperture; with the ground anywhere between the seabed's lowest and highest point that bounds r per beam.
+    Rows outside carry no seabed power, so they are not computed. Bounds are widened by a margin far beyond the
+    float32 round-off of the per-pixel test; geometries the bound does not cover (sonar not above every point of
+    the seabed, tilt near vertical) keep every row.
+    """
+    low, high = seabed.height_range
+    n_ranges = ranges.size
+    ct, st = math.cos(tilt), math.sin(tilt)
+    b = np.cos(azimuths) * st
+    delta = np.arctan2(b, ct)
+    if height_m <= high or ct <= 0.0 or float(delta.min()) - half_aperture <= -math.pi / 2 + 1e-3:
+        return 0, n_ranges
+    norm = np.sqrt(ct * ct + b * b)
+    # phi >= -half_aperture needs q >= sin(-half_aperture - delta); phi <= half_aperture needs q <= sin(half - delta)
+    q_low = np.sin(np.maximum(-half_aperture - delta, -math.pi / 2))
+    q_high = np.sin(np.minimum(half_aperture - delta, math.pi / 2))
+    with np.errstate(divide="ignore"):
+        near = np.where(q_low < 0, (height_m - high) / (norm * -q_low), np.inf)
+        far = np.where(q_high < 0, (height_m - low) / (norm * -q_high), np.inf)
+    margin = 1e-3 * (ranges[-1] - ranges[0]) + 2 * (ranges[-1] - ranges[0]) / max(n_ranges - 1, 1)
+    first = int(np.searchsorted(ranges, float(near.min()) * (1 - 1e-3) - margin))
+    last = int(np.searchsorted(ranges, float(far.max()) * (1 + 1e-3) + margin, side="right"))
+    return min(first, n_ranges), max(min(last, n_ranges), min(first, n_ranges))
+
+
 def _seabed_power(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: np.ndarray, ranges: np.ndarray,
                   sensor: SensorConfig, hit_t: np.ndarray) -> np.ndarray:
+    """Seabed power [n_ranges, n_beams], computed on the rows where the seabed can be in view (zero elsewhere)."""
+    half_aperture = math.radians(sensor.vertical_fov_deg) / 2
+    first, last = _seabed_rows(scene.seabed, float(origin[2]), pose_tilt(axes), ranges, azimuths, half_aperture)
+    power = np.zeros((ranges.size, azimuths.size), dtype=np.float32)
+    if last > first:
+        power[first:last] = _seabed_band(scene, origin, axes, azimuths, ranges[first:last], sensor, hit_t)
+    return power
+
+
+def _seabed_band(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: np.ndarray, ranges: np.ndarray,
+                 sensor: SensorConfig, hit_t: np.ndarray) -> np.ndarray:
+    """Seabed power on the rows at `ranges` (solved per pixel; shadows from the object rays' hits)."""
     seabed = scene.seabed
     r = ranges.astype(np.float32)[:, None]
     cos_t = np.cos(azimuths).astype(np.float32)[None, :]
@@ -155,15 +197,30 @@ def _seabed_power(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: 
     fill = np.minimum(fill * np.float32(1.0 / _reference_fill()), np.float32(_MAX_SEABED_FILL))
     power = backscatter * albedo * fill
 
-    if np.isfinite(hit_t).any():
-        # shadows: the object ray at this pixel's (beam, elevation) stopped nearer
-        phi = np.arcsin(np.minimum(np.maximum(sin_p, np.float32(-1.0)), np.float32(1.0)))
-        step = 2 * half_aperture / sensor.elevation_rays
-        elevation_index = np.clip(((phi + half_aperture) / step).astype(np.int32), 0, sensor.elevation_rays - 1)
-        blocker = hit_t.astype(np.float32)[elevation_index, np.arange(sensor.n_beams)[None, :]]
-        visible &= blocker >= r - np.float32(sensor.range_bin_m)
+    _shade(visible, sin_p, r, hit_t, ranges, half_aperture, sensor)
     power *= visible
     return power
+
+
+def _shade(visible: np.ndarray, sin_p: np.ndarray, r: np.ndarray, hit_t: np.ndarray, ranges: np.ndarray,
+           half_aperture: float, sensor: SensorConfig) -> None:
+    """Clear `visible` where the object ray at the pixel's (beam, elevation) stopped nearer (acoustic shadow).
+
+    Only pixels beyond the nearest hit (one bin of slack), on the beams some ray hit, can be in one: the test
+    runs on that box alone.
+    """
+    blocked = np.isfinite(hit_t)
+    if not blocked.any():
+        return
+    beams = np.flatnonzero(blocked.any(axis=0))
+    first_beam, last_beam = int(beams[0]), int(beams[-1]) + 1
+    first_row = int(np.searchsorted(ranges, float(hit_t[blocked].min()) - sensor.range_bin_m))
+    box = (slice(first_row, None), slice(first_beam, last_beam))
+    phi = np.arcsin(np.minimum(np.maximum(sin_p[box], np.float32(-1.0)), np.float32(1.0)))
+    step = 2 * half_aperture / sensor.elevation_rays
+    elevation_index = np.clip(((phi + half_aperture) / step).astype(np.int32), 0, sensor.elevation_rays - 1)
+    blocker = hit_t.astype(np.float32)[elevation_index, np.arange(first_beam, last_beam)[None, :]]
+    visible[box] &= blocker >= r[first_row:] - np.float32(sensor.range_bin_m)
 
 
 def _power_law(cos_inc: np.ndarray, exponent: float) -> np.ndarray:
@@ -187,7 +244,12 @@ def _reference_fill() -> float:
 
 def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables: _SensorTables,
                       sensor: SensorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest object hit per (elevation, beam) ray: distance (inf = none), world normal, material, object id."""
+    """Nearest object hit per (elevation, beam) ray: distance (inf = none), world normal, material, object id.
+
+    Each primitive is tested on the rays near its bounding sphere. Ellipsoids (most primitives: tyre segments,
+    stalks, rocks) are tested all together in one vectorised pass over every (ray, ellipsoid) pair; the nearest
+    hit per ray wins (the earlier primitive on a tie), and normals are computed for the winners only.
+    """
     azimuths, elevations = tables.azimuths, tables.elevations
     n_el, n_beams = elevations.size, azimuths.size
     hit_t = np.full((n_el, n_beams), np.inf, dtype=np.float64)
@@ -197,47 +259,125 @@ def _cast_object_rays(scene: Scene, origin: np.ndarray, axes: np.ndarray, tables
     if not scene.primitives:
         return hit_t, hit_normal, hit_material, hit_object
     directions = tables.ray_dirs @ axes.T  # world, [E, B, 3]
-    beam_margin = float(np.max(np.diff(azimuths))) if n_beams > 1 else math.pi
-    el_step = float(elevations[1] - elevations[0]) if n_el > 1 else math.pi
+    ray_ids = np.arange(n_el * n_beams).reshape(n_el, n_beams)
 
-    for prim in scene.primitives:
-        local_center = axes.T @ (prim.bounding_center - origin)
-        distance = float(np.linalg.norm(local_center))
-        radius = prim.bounding_radius
-        if distance - radius > sensor.max_range_m or distance + radius < sensor.min_range_m:
+    others: list[tuple[int, np.ndarray, np.ndarray]] = []  # (primitive, ray ids, distances) of non-ellipsoids
+    ellipsoids = _EllipsoidPairs(origin)
+    for index, window in enumerate(_ray_windows(scene.primitives, origin, axes, tables, sensor)):
+        if window is None:
             continue
-        if distance <= radius:
-            beams, rows = slice(0, n_beams), slice(0, n_el)
+        prim = scene.primitives[index]
+        if prim.kind == "ellipsoid":
+            ellipsoids.add(prim, index, ray_ids[window].ravel(), directions[window])
         else:
-            spread = math.asin(radius / distance)
-            bearing = math.atan2(-local_center[1], local_center[0])
-            elevation = math.asin(local_center[2] / distance)
-            widen = spread / max(math.cos(abs(elevation) + spread), 0.05) if abs(elevation) + spread < 1.5 else math.pi
-            b0, b1 = np.searchsorted(azimuths, [bearing - widen - beam_margin, bearing + widen + beam_margin])
-            e0, e1 = np.searchsorted(elevations, [elevation - spread - el_step, elevation + spread + el_step])
-            if b0 >= b1 or e0 >= e1:
-                continue
-            beams, rows = slice(int(b0), int(b1)), slice(int(e0), int(e1))
-        d = directions[rows, beams]
-        t, normal = intersect(prim, origin, d)
-        current = hit_t[rows, beams]
-        better = t < current
-        if not better.any():
-            continue
-        current[better] = t[better]
-        hit_normal[rows, beams][better] = normal[better]
-        hit_material[rows, beams][better] = MATERIAL_NAMES.index(prim.material)
-        hit_object[rows, beams][better] = prim.object_id
+            others.append((index, ray_ids[window].ravel(), intersect(prim, origin, directions[window])[0].ravel()))
+    pairs = ellipsoids.intersect()
+    rays = np.concatenate([pairs.rays] + [o[1] for o in others])
+    distances = np.concatenate([pairs.t] + [o[2] for o in others])
+    owners = np.concatenate([pairs.owners] + [np.full(o[1].size, o[0], dtype=np.int32) for o in others])
+    candidates = np.flatnonzero(np.isfinite(distances))
+    if candidates.size == 0:
+        return hit_t, hit_normal, hit_material, hit_object
+    candidates = candidates[np.lexsort((owners[candidates], distances[candidates], rays[candidates]))]
+    sorted_rays = rays[candidates]
+    winners = candidates[np.r_[True, sorted_rays[1:] != sorted_rays[:-1]]]  # first (nearest) candidate per ray
+    hit_t.reshape(-1)[rays[winners]] = distances[winners]
+
+    flat_normal = hit_normal.reshape(-1, 3)
+    flat_dirs = directions.reshape(-1, 3)
+    won_pairs = winners[winners < pairs.rays.size]
+    local_normals = pairs.local_normals(won_pairs)
+    for index in np.unique(owners[winners]):
+        prim = scene.primitives[int(index)]
+        ids = rays[winners[owners[winners] == index]]
+        if prim.kind == "ellipsoid":
+            flat_normal[ids] = local_normals[pairs.owners[won_pairs] == index] @ prim.rotation.T
+        else:
+            flat_normal[ids] = intersect(prim, origin, flat_dirs[ids])[1]
+        hit_material.reshape(-1)[ids] = MATERIAL_NAMES.index(prim.material)
+        hit_object.reshape(-1)[ids] = prim.object_id
 
     # hits below the seabed are buried parts of objects: they neither return nor cast shadows
     hit = np.isfinite(hit_t)
-    if hit.any():
-        points = origin + directions[hit] * hit_t[hit][:, None]
-        ground = scene.seabed.height_at(points[None, :, 0], points[None, :, 1])[0]
-        buried = points[:, 2] < ground - 0.02
-        idx = np.nonzero(hit)
-        hit_t[idx[0][buried], idx[1][buried]] = np.inf
+    points = origin + directions[hit] * hit_t[hit][:, None]
+    ground = scene.seabed.height_at(points[None, :, 0], points[None, :, 1])[0]
+    buried = points[:, 2] < ground - 0.02
+    idx = np.nonzero(hit)
+    hit_t[idx[0][buried], idx[1][buried]] = np.inf
     return hit_t, hit_normal, hit_material, hit_object
+
+
+def _ray_windows(primitives: tuple[Primitive, ...], origin: np.ndarray, axes: np.ndarray, tables: _SensorTables,
+                 sensor: SensorConfig) -> list[tuple[slice, slice] | None]:
+    """Per primitive, the (elevation rows, beams) of the rays that can reach its bounding sphere; None if none can."""
+    azimuths, elevations = tables.azimuths, tables.elevations
+    beam_margin = float(np.max(np.diff(azimuths))) if azimuths.size > 1 else math.pi
+    el_step = float(elevations[1] - elevations[0]) if elevations.size > 1 else math.pi
+    local = (np.array([p.bounding_center for p in primitives]) - origin) @ axes  # sonar frame, [P, 3]
+    distance = np.linalg.norm(local, axis=1)
+    radius = np.array([p.bounding_radius for p in primitives])
+    in_range = (distance - radius <= sensor.max_range_m) & (distance + radius >= sensor.min_range_m)
+    outside = distance > radius
+    safe = np.where(outside, distance, 1.0)
+    spread = np.arcsin(np.where(outside, radius / safe, 0.0))
+    bearing = np.arctan2(-local[:, 1], local[:, 0])
+    elevation = np.arcsin(np.clip(local[:, 2] / safe, -1.0, 1.0))
+    edge = np.abs(elevation) + spread
+    widen = np.where(edge < 1.5, spread / np.maximum(np.cos(edge), 0.05), math.pi)
+    b0 = np.searchsorted(azimuths, bearing - widen - beam_margin)
+    b1 = np.searchsorted(azimuths, bearing + widen + beam_margin)
+    e0 = np.searchsorted(elevations, elevation - spread - el_step)
+    e1 = np.searchsorted(elevations, elevation + spread + el_step)
+    windows: list[tuple[slice, slice] | None] = []
+    for k in range(len(primitives)):
+        if not in_range[k] or (outside[k] and (b0[k] >= b1[k] or e0[k] >= e1[k])):
+            windows.append(None)
+        elif not outside[k]:  # the sonar is inside the bounding sphere: every ray
+            windows.append((slice(0, elevations.size), slice(0, azimuths.size)))
+        else:
+            windows.append((slice(int(e0[k]), int(e1[k])), slice(int(b0[k]), int(b1[k]))))
+    return windows
+
+
+class _EllipsoidPairs:
+    """(ray, ellipsoid) pairs gathered primitive by primitive, then intersected in one vectorised pass.
+
+    The arithmetic per pair is intersect()'s for an ellipsoid, so distances and normals are the same numbers.
+    """
+
+    def __init__(self, origin: np.ndarray) -> None:
+        self.origin = origin
+        self._rays: list[np.ndarray] = []
+        self._dirs: list[np.ndarray] = []
+        self._origins: list[np.ndarray] = []
+        self._semi_axes: list[np.ndarray] = []
+        self._owners: list[int] = []
+
+    def add(self, prim: Primitive, index: int, rays: np.ndarray, directions: np.ndarray) -> None:
+        self._rays.append(rays)
+        self._dirs.append((directions @ prim.rotation).reshape(-1, 3))  # local frame
+        self._origins.append(prim.rotation.T @ (self.origin - np.asarray(prim.center)))
+        self._semi_axes.append(np.asarray(prim.size))
+        self._owners.append(index)
+
+    def intersect(self) -> _EllipsoidPairs:
+        """Distance to the first hit per pair (inf = none): fills rays, t, owners."""
+        counts = [r.size for r in self._rays]
+        self.rays = np.concatenate(self._rays) if counts else np.zeros(0, dtype=np.int64)
+        self.owners = np.repeat(np.array(self._owners, dtype=np.int32), counts)
+        self.dirs = np.concatenate(self._dirs) if counts else np.zeros((0, 3))
+        semi_axes = np.array(self._semi_axes).reshape(-1, 3)
+        scaled_origins = np.array(self._origins).reshape(-1, 3) / semi_axes
+        self._pair_origins = np.repeat(np.array(self._origins).reshape(-1, 3), counts, axis=0)
+        self._pair_semi_axes = np.repeat(semi_axes, counts, axis=0)
+        self.t = _ellipsoid_distance(np.repeat(scaled_origins, counts, axis=0), self.dirs / self._pair_semi_axes,
+                                     np.repeat([float(o @ o) - 1.0 for o in scaled_origins], counts))
+        return self
+
+    def local_normals(self, pairs: np.ndarray) -> np.ndarray:
+        """Unit normals (ellipsoid frame) at the hits of the given pairs."""
+        return _ellipsoid_local_normal(self._pair_origins[pairs], self.dirs[pairs], self.t[pairs],
+                                       self._pair_semi_axes[pairs])
 
 
 def _add_object_power(power: np.ndarray, mask: np.ndarray, hit_t: np.ndarray, hit_normal: np.ndarray,
@@ -269,30 +409,42 @@ def _add_object_power(power: np.ndarray, mask: np.ndarray, hit_t: np.ndarray, hi
 
 
 def _splat(power: np.ndarray, start: np.ndarray, end: np.ndarray, beam: np.ndarray, total: np.ndarray) -> None:
-    """Add `total` spread uniformly over range-bin coordinates [start, end) of each beam (bin k spans [k, k+1))."""
-    n_ranges, n_beams = power.shape
+    """Add `total` spread uniformly over range-bin coordinates [start, end) of each beam (bin k spans [k, k+1)).
+
+    The sums run on the box of beams the rays hit, from their nearest bin to the last (the running sum along
+    range carries its round-off to the end of each column): the same numbers as over the whole grid, a
+    fraction of the passes.
+    """
+    n_ranges = power.shape[0]
     density = total / (end - start)
     first, last = np.floor(start).astype(np.int64), np.floor(end).astype(np.int64)
+    top = int(np.clip(first.min(), 0, n_ranges))
+    beam_lo = int(beam.min())
+    box_beams = int(beam.max()) + 1 - beam_lo
+    box_rows = n_ranges - top
+    col = beam - beam_lo
     same = first == last
     split = ~same
     # (range bins, beams, power): elements inside one bin, then the partial first and last bins of the others
-    parts = [(first[same], beam[same], total[same]),
-             (first[split], beam[split], density[split] * (first[split] + 1 - start[split])),
-             (last[split], beam[split], density[split] * (end[split] - last[split]))]
-    flat = np.zeros(n_ranges * n_beams, dtype=np.float64)
+    parts = [(first[same], col[same], total[same]),
+             (first[split], col[split], density[split] * (first[split] + 1 - start[split])),
+             (last[split], col[split], density[split] * (end[split] - last[split]))]
+    flat = np.zeros(box_rows * box_beams, dtype=np.float64)
     for rows, cols, weight in parts:
-        inside = (rows >= 0) & (rows < n_ranges)
-        flat += np.bincount(rows[inside] * n_beams + cols[inside], weights=weight[inside], minlength=flat.size)
+        inside = (rows >= top) & (rows < n_ranges)
+        flat += np.bincount((rows[inside] - top) * box_beams + cols[inside], weights=weight[inside],
+                            minlength=flat.size)
     # whole bins strictly between first and last: a difference array along range, then a cumulative sum
     middle = split & (last > first + 1)
     if middle.any():
-        diff = np.zeros((n_ranges + 1) * n_beams, dtype=np.float64)
-        lo = np.clip(first[middle] + 1, 0, n_ranges)
-        hi = np.clip(last[middle], 0, n_ranges)
-        diff += np.bincount(lo * n_beams + beam[middle], weights=density[middle], minlength=diff.size)
-        diff -= np.bincount(hi * n_beams + beam[middle], weights=density[middle], minlength=diff.size)
-        flat += np.cumsum(diff.reshape(n_ranges + 1, n_beams), axis=0)[:n_ranges].reshape(-1)
-    power += np.maximum(flat, 0.0).reshape(power.shape).astype(np.float32)  # cumsum round-off can dip below 0
+        diff = np.zeros((box_rows + 1) * box_beams, dtype=np.float64)
+        lo = np.clip(first[middle] + 1, top, n_ranges) - top
+        hi = np.clip(last[middle], top, n_ranges) - top
+        diff += np.bincount(lo * box_beams + col[middle], weights=density[middle], minlength=diff.size)
+        diff -= np.bincount(hi * box_beams + col[middle], weights=density[middle], minlength=diff.size)
+        flat += np.cumsum(diff.reshape(box_rows + 1, box_beams), axis=0)[:box_rows].reshape(-1)
+    # cumsum round-off can dip below 0
+    power[top:, beam_lo:beam_lo + box_beams] += np.maximum(flat, 0.0).reshape(box_rows, box_beams).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------- ray tests
@@ -312,18 +464,27 @@ def intersect(prim: Primitive, origin: np.ndarray, directions: np.ndarray) -> tu
     return t, n_local @ rot.T
 
 
-def _ellipsoid(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    os_, ds = o / semi_axes, d / semi_axes
-    a = (ds * ds).sum(-1)
-    b = 2 * (ds * os_).sum(-1)
-    c = float(os_ @ os_) - 1.0
-    disc = b * b - 4 * a * c
+def _ellipsoid_distance(scaled_origin: np.ndarray, scaled_dirs: np.ndarray, offset: np.ndarray | float) -> np.ndarray:
+    """Distance along unit rays to a unit sphere, in coordinates scaled by the semi-axes: origin o/s, directions
+    d/s, offset |o/s|^2 - 1 (one ellipsoid, or one per ray)."""
+    a = (scaled_dirs * scaled_dirs).sum(-1)
+    b = 2 * (scaled_dirs * scaled_origin).sum(-1)
+    disc = b * b - 4 * a * offset
     root = np.sqrt(np.maximum(disc, 0))
     t = (-b - root) / (2 * a)
-    t = np.where((disc >= 0) & (t > 0), t, np.inf)
-    point = o + d * np.where(np.isfinite(t), t, 0)[..., None]
+    return np.where((disc >= 0) & (t > 0), t, np.inf)
+
+
+def _ellipsoid(o: np.ndarray, d: np.ndarray, semi_axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    scaled_origin = o / semi_axes
+    t = _ellipsoid_distance(scaled_origin, d / semi_axes, float(scaled_origin @ scaled_origin) - 1.0)
+    return t, _ellipsoid_local_normal(o, d, np.where(np.isfinite(t), t, 0), semi_axes)
+
+
+def _ellipsoid_local_normal(o: np.ndarray, d: np.ndarray, t: np.ndarray, semi_axes: np.ndarray) -> np.ndarray:
+    point = o + d * t[..., None]
     normal = point / semi_axes ** 2
-    return t, normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+    return normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
 
 
 def _cylinder(o: np.ndarray, d: np.ndarray, radius: float, length: float) -> tuple[np.ndarray, np.ndarray]:

@@ -62,11 +62,14 @@ class Seabed:
     material: str = "sand"
     # heights, d/dx, d/dy, albedo packed as one 4-channel image: one cv2.remap samples all four
     fields: np.ndarray = field(init=False, repr=False)
+    # lowest and highest height: bounds where the seabed can be seen from a pose without sampling it
+    height_range: tuple[float, float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         gy, gx = np.gradient(self.heights.astype(np.float32), self.spacing_m)
         packed = np.dstack([self.heights, gx, gy, self.albedo]).astype(np.float32)
         object.__setattr__(self, "fields", packed)
+        object.__setattr__(self, "height_range", (float(self.heights.min()), float(self.heights.max())))
 
     def _maps(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         x = np.asarray(x)
