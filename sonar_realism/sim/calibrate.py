@@ -478,14 +478,14 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                 calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
     say(f"targets: {calibration.targets}")
     mounting_bins, real_headroom = _sim_bins(calibration, config.mounting_frames, seed), _headroom(images)
-    for _ in range(2):
-        # the mounting once more under the final chain, texture, export and gain, on more frames: the onset's
-        # median and its spread over frames
-        if onset_measured:
+    for rematch in (True, True, False):  # a last gain update on the settled mounting and output gain
+        if rematch and onset_measured:
+            # the mounting once more under the final chain, texture, export and gain, on more frames: the
+            # onset's median and its spread over frames
             sim_onsets = _frame_onsets(_sim_images(calibration, chain, config.mounting_frames, seed), mounting_bins)
             calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=True)
-        # with the residual gain in place, as a range gain can saturate a band the chain alone does not
-        calibration, chain = _match_headroom(calibration, chain, real_headroom, config.mounting_frames, seed)
+        if rematch:  # with the residual gain in place, as a range gain can saturate a band the chain alone does not
+            calibration, chain = _match_headroom(calibration, chain, real_headroom, config.mounting_frames, seed)
         sim_fp = fingerprint(_sim_images(calibration, chain, n, seed))
         range_db = np.clip(np.array(calibration.range_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS,
                                                                               "range"), -12, 12)
