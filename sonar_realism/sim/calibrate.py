@@ -16,9 +16,8 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    the calibrated setting (fingerprint in sim/fingerprint.py);
 5. the texture: the recording's own speckle and row gain (sim/texture.py), which simulation draws in place of
    the catalogue's speckle; the seabed look matched again under it;
-6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
-   output mapping's gain (the seabed's headroom below the frame's brightest level), the residual range/bearing
-   gain;
+6. under the final chain and texture: the mounting again (the onset's median and its spread over frames) and
+   the residual range/bearing gain;
 7. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
    short local search from the fit), 5th-95th percentiles.
 """
@@ -59,18 +58,11 @@ from sonar_realism.sim.calibration import (
     TargetTerms,
     save_calibration,
 )
-from sonar_realism.sim.effects import (
-    EFFECTS,
-    PIPELINE_ORDER,
-    Effect,
-    GammaQuantization,
-    apply_effects,
-    calibrated_parameters,
-)
+from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, calibrated_parameters
 from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, per_frame_rescaled, resample_profile
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
-from sonar_realism.sim.texture import fit_texture, local_mean
+from sonar_realism.sim.texture import fit_texture
 
 MIN_FRAMES = 8
 MAX_GRID_MODES = 24
@@ -245,32 +237,6 @@ def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: Seabe
                           float(np.clip(look.patch_scale_m * real_scale_rows / max(scale_rows, 0.5), 0.05, 20.0)),
                           float(np.clip(look.dark_fraction + (real_dark - dark), 0.0, 0.8)), look.roughness_m)
     return look
-
-
-def _headroom(images: Sequence[np.ndarray]) -> float:
-    values = [h for image in images if (h := measure.seabed_headroom(image, local_mean(image))) is not None]
-    return float(np.median(values)) if values else math.nan
-
-
-def _match_headroom(calibration: Calibration, chain: list[Effect], real: float, n: int, seed: int,
-                    ) -> tuple[Calibration, list[Effect]]:
-    """The output mapping's gain set so the seabed sits as far below the brightest level as in the recording:
-    too high a gain saturates the bright seabed and flattens the top of the level range, which per-frame
-    rescaling then shows as a seabed too close to white. Below saturation the headroom no longer depends on the
-    gain, so the search stops at the effect's bounds."""
-    low, high = GammaQuantization.PARAM_BOUNDS["gain"]
-    for _ in range(2):
-        sim = _headroom(_sim_images(calibration, chain, n, seed))
-        if not (math.isfinite(sim) and math.isfinite(real)) or sim <= 0:
-            break
-        output = calibration.effects["gamma_quantization"]
-        # the headroom grows about as gain^0.55 while the seabed saturates (measured on the Oculus set)
-        gain = float(np.clip(output["gain"] * (real / sim) ** 1.8, low, high))
-        gain = round(gain, 4)
-        calibration = dataclasses.replace(calibration, effects={
-            **calibration.effects, "gamma_quantization": {**output, "gain": gain}})
-        chain = [dataclasses.replace(e, gain=gain) if isinstance(e, GammaQuantization) else e for e in chain]
-    return calibration, chain
 
 
 def _fixed_seabed(look: SeabedLook) -> SeabedTerms:
@@ -477,15 +443,13 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
             calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
                 calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
     say(f"targets: {calibration.targets}")
-    mounting_bins, real_headroom = _sim_bins(calibration, config.mounting_frames, seed), _headroom(images)
-    for rematch in (True, True, False):  # a last gain update on the settled mounting and output gain
+    mounting_bins = _sim_bins(calibration, config.mounting_frames, seed)
+    for rematch in (True, True, False):  # a last gain update on the settled mounting
         if rematch and onset_measured:
             # the mounting once more under the final chain, texture, export and gain, on more frames: the
             # onset's median and its spread over frames
             sim_onsets = _frame_onsets(_sim_images(calibration, chain, config.mounting_frames, seed), mounting_bins)
             calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=True)
-        if rematch:  # with the residual gain in place, as a range gain can saturate a band the chain alone does not
-            calibration, chain = _match_headroom(calibration, chain, real_headroom, config.mounting_frames, seed)
         sim_fp = fingerprint(_sim_images(calibration, chain, n, seed))
         range_db = np.clip(np.array(calibration.range_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS,
                                                                               "range"), -12, 12)
@@ -495,8 +459,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                                           bearing_gain_db=tuple(round(float(v), 2) for v in bearing_db))
     m = calibration.mounting
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
-        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; output gain {calibration.effects['gamma_quantization']['gain']:.3f}"
-        " (the seabed's headroom below the brightest level as in the recording)")
+        f"pitch sd {m.pitch_sd_deg.value:.2f} deg")
 
     # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
     fitted = _effect_intervals(clean, chain, images, config, rng, log)

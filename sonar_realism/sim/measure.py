@@ -7,9 +7,7 @@ All images are float [n_ranges, n_beams] scaled so the frame maximum is 1 (the r
   half the seabed level; its curvature across the fan gives the tilt, its range the height;
 - seabed patchiness: the local mean (a box a few cells wide) below the onset, as log level about each row's
   median: its spread (interquartile, as an rms), its correlation length along range, the share below half;
-- a target: a long run of beams darker than the seabed around it behind a bright return (its shadow);
-- the output's headroom: the seabed's median local level over the frame's brightest local level (how far the
-  sensor's gain puts the seabed below what the export saturates).
+- a target: a long run of beams darker than the seabed around it behind a bright return (its shadow).
 """
 
 from __future__ import annotations
@@ -184,16 +182,6 @@ def highlight_ratio(image: np.ndarray, columns: slice, shadow_row: int) -> float
     ahead = image[top:shadow_row + 2, columns]
     seabed = float(np.median(image[seabed_rows(image):]))
     return float(np.percentile(ahead, 95)) / max(seabed, 1e-6) if ahead.size else math.nan
-
-
-def seabed_headroom(image: np.ndarray, local: np.ndarray) -> float | None:
-    """The seabed's median local level (below the onset) over the frame's brightest local level; `local` is the
-    frame's local mean (sim/texture.py), None when the frame has no seabed or is black."""
-    seabed = local[seabed_rows(image):]
-    peak = float(local.max())
-    if seabed.size == 0 or peak <= 0:
-        return None
-    return float(np.median(seabed)) / peak
 
 
 def near_zero_fraction(image: np.ndarray, threshold: float = NEAR_ZERO) -> float:
