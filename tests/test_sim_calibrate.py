@@ -54,7 +54,7 @@ def recording() -> list:
     return [frame for frame, _ in simulate_calibrated(truth(), 12, seed=3)]
 
 
-FAST = CalibrateConfig(sim_frames=3, mounting_frames=8, rounds=1, bootstrap=20, effect_bootstrap=1, texture=False)
+FAST = CalibrateConfig(sim_frames=3, mounting_frames=16, rounds=1, bootstrap=20, effect_bootstrap=1, texture=False)
 
 
 @pytest.fixture(scope="module")
