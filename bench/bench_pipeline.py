@@ -54,6 +54,10 @@ import zmq
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+# This process stands in for the source and receiver nodes, which run with OpenMP threads that sleep between calls
+# (runtime/process.py); its own torch (the compute-only series) must not spin on the cores after each call while
+# the next latency trip runs. Has no effect when torch was loaded before this module (bench/run.py runs others).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.runtime.delivery import InputPolicy  # noqa: E402
