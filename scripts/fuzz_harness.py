@@ -34,9 +34,9 @@ def refused_allocation(error: BaseException) -> bool:
 
 
 def bounded(decode: Callable[[bytes], None]) -> Callable[[bytes], None]:
-    """`decode` with at most MAX_ALLOCATION more address space than the process holds when it starts: an
+    """`decode` with at most MAX_ALLOCATION more address space than the process holds when the input starts: an
     input that needs more gets MemoryError at the allocation and fails like a crash. RLIMIT_AS counts every
-    mapping (numpy, zlib, msgpack, Python's heap) and costs two syscalls an input, where tracemalloc made
+    mapping (numpy, zlib, msgpack, Python's heap) and costs three syscalls an input, where tracemalloc made
     every allocation ~5x slower; the limit is lifted again so that libFuzzer's own bookkeeping is not bound."""
     _, hard = resource.getrlimit(resource.RLIMIT_AS)
 

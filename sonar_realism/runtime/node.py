@@ -457,6 +457,8 @@ class Node:
         self._sockets_lent.clear()
         self._interrupt_out.send(b"", zmq.NOBLOCK)
         self._sockets_held.acquire()
+        while self._interrupt_in.poll(0):  # a cut the receive thread did not see must not cut our own poll short
+            self._interrupt_in.recv()
 
     def _loop(self) -> None:
         next_produce = time.monotonic() if not self.INPUTS else None
