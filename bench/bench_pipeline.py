@@ -36,6 +36,7 @@ Goal (issue): transport + framing add <= 2 ms at p99 and cost <= 10 % of through
 # No `from __future__ import annotations`: bench/run.py loads this file without putting it in sys.modules, and
 # dataclasses cannot resolve string annotations of such a module.
 import argparse
+import gc
 import math
 import os
 import socket
@@ -415,6 +416,8 @@ def run(frames: int = DEFAULT_FRAMES, device: str = "auto", samples: Sequence[in
 
     translator = Translator.from_checkpoint(DEFAULT_CHECKPOINT, device=device)
     pool = simulated_frames(POOL)
+    gc.collect()
+    gc.freeze()  # as in a node (Node.run): the receiver's timing must not include a full collection over torch
     context = zmq.Context()
     rows = []
     try:

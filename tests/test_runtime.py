@@ -3,6 +3,7 @@ status, and shutdown that never hangs. Real inproc sockets, real threads, tiny f
 
 from __future__ import annotations
 
+import gc
 import itertools
 import threading
 import time
@@ -384,3 +385,11 @@ def test_an_idle_node_reads_frames_on_its_own_thread_and_a_busy_one_on_its_recei
     assert queued_by[1] is not thread
     # The receive thread holds the sockets for a moment every tick while the node idles, so allow a few.
     assert sum(queued_by[seq] is thread for seq in range(2, 12)) >= 7
+
+
+def test_what_a_node_made_before_running_is_left_out_of_garbage_collections(context):
+    gc.unfreeze()
+    src, sink = pair(context, InputPolicy("lossless"), SourceParams(count=3))
+    run_all(src, sink)
+    assert gc.get_freeze_count() > 0  # else a full collection walks the model's objects mid-stream
+    gc.unfreeze()
