@@ -179,6 +179,7 @@ def test_lossless_delivers_every_one_of_2000_frames_in_order_to_a_slower_consume
     status = sink.status()
     assert status["dropped"] == 0 and status["seq_gaps"] == 0 and status["frames_in"] == 2000
     assert src.status()["frames_out"] == 2000
+    assert sink._pump is None  # lossless inputs are read by the node's own thread alone
 
 
 def test_subscribers_get_the_first_frame_because_sources_wait_for_them(context):

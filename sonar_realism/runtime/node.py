@@ -11,8 +11,9 @@ It calls `publish(output, frame, provenance)` and `record_inference(ms, n_frames
 Lifecycle of `run()`: configure -> bind outputs -> wait until every expected consumer is subscribed
 -> connect inputs -> loop -> finish -> end of stream -> shutdown. While the node waits for news, its own
 thread reads the inputs, so a frame that finds it idle is received, decoded and processed without a hand-over
-between threads; while process() or produce() runs, a receive thread keeps draining them into the policy
-queues, so `latest` really is the newest frame even while the model runs.
+between threads; while process() or produce() runs, a receive thread keeps draining inputs that drop
+(`latest`, `fifo`) into the policy queues, so `latest` really is the newest frame even while the model runs
+(a source's thread reads acknowledgements). Lossless inputs wait in their socket meanwhile.
 The loop never blocks for more than `_TICK_S`; `request_stop()` (signal handlers, the launcher) ends it.
 `shutdown()` is idempotent.
 
@@ -147,7 +148,8 @@ class Node:
         self._status_subscribers = 0
         self._pump: threading.Thread | None = None
         # Input and acknowledgement sockets, used by one thread at a time, the one holding _sockets_held: the
-        # main thread inside _wait_for_news, the receive thread otherwise (while _sockets_lent is set).
+        # main thread inside _wait_for_news, the receive thread otherwise (while _sockets_lent is set); the main
+        # thread alone where no receive thread is needed (_start_input_pump).
         self._receivers: dict[zmq.Socket, str] = {}
         self._ack_readers: dict[zmq.Socket, ResendBuffer] = {}
         self._sockets_lent = threading.Event()
@@ -290,8 +292,10 @@ class Node:
         if self._pump is not None:
             self._interrupt_out.send(b"", zmq.NOBLOCK)
             self._pump.join(timeout=5.0)
-            for sock in [*self._receivers, self._interrupt_in, self._interrupt_out]:
-                sock.close(linger=0)
+            self._interrupt_in.close(linger=0)
+            self._interrupt_out.close(linger=0)
+        for sock in self._receivers:
+            sock.close(linger=0)
         self._send_status()
         for out in self._outputs.values():
             out.xpub.close(linger=0)
@@ -390,7 +394,12 @@ class Node:
             self._receivers[sock] = input_name
         self._ack_readers = {e.acks: e.buffer for o in self._outputs.values() for e in o.edges
                              if e.acks is not None and e.buffer is not None}
-        if self._receivers or self._ack_readers:
+        # A receive thread reads while process()/produce() runs only where that is needed: an input that drops
+        # (`latest`, `fifo`) must count its drops as they happen and keep the newest frame, and a source must
+        # hear its consumers' acknowledgements (a restarted consumer waits for its resync). Lossless inputs
+        # need none: their frames wait in the socket while the model runs (backpressure, as a full queue).
+        drops = any(w.policy.policy != "lossless" for w in self.wiring.inputs.values())
+        if (self._receivers or self._ack_readers) and (drops or not self.INPUTS):
             endpoint = f"inproc://{self.name}-{self.session}-interrupt"
             self._interrupt_in = self.context.socket(zmq.PAIR)
             self._interrupt_in.bind(endpoint)
@@ -440,9 +449,12 @@ class Node:
         """Wait until something arrives (a frame, an acknowledgement) or `timeout_s`, reading the input and
         acknowledgement sockets on this thread meanwhile: a frame that finds the node idle is received,
         decoded and processed here, with no hand-over between threads. Outside this wait (while process()
-        or produce() runs) the receive thread reads them."""
-        if self._pump is None:
+        or produce() runs) the receive thread reads them, where there is one (_start_input_pump)."""
+        if not (self._receivers or self._ack_readers):
             self._wake.wait(timeout_s)
+        elif self._pump is None:
+            if not self._wake.is_set():
+                self._receive(timeout_s)
         else:
             self._reclaim_sockets()
             try:
@@ -614,7 +626,8 @@ class Node:
         """One poll of the inputs and acknowledgement sockets (at most `timeout_s`), handling what is there;
         run by whichever thread holds the sockets."""
         poller = zmq.Poller()
-        poller.register(self._interrupt_in, zmq.POLLIN)
+        if self._interrupt_in is not None:
+            poller.register(self._interrupt_in, zmq.POLLIN)
         waiting_for_room = False
         for sock, input_name in self._receivers.items():
             if self._stop.is_set():
@@ -627,7 +640,7 @@ class Node:
             poller.register(sock, zmq.POLLIN)
         # A full queue frees up without any socket event: look again soon.
         readable = dict(poller.poll(min(timeout_s, _ROOM_POLL_S) * 1000 if waiting_for_room else timeout_s * 1000))
-        if self._interrupt_in in readable:
+        if self._interrupt_in is not None and self._interrupt_in in readable:
             while self._interrupt_in.poll(0):
                 self._interrupt_in.recv()
         for sock, buffer in self._ack_readers.items():
