@@ -12,8 +12,8 @@ Lifecycle of `run()`: configure -> bind outputs -> wait until every expected con
 -> connect inputs -> loop -> finish -> end of stream -> shutdown. While the node waits for news, its own
 thread reads the inputs, so a frame that finds it idle is received, decoded and processed without a hand-over
 between threads; while process() or produce() runs, a receive thread keeps draining inputs that drop
-(`latest`, `fifo`) into the policy queues, so `latest` really is the newest frame even while the model runs
-(a source's thread reads acknowledgements). Lossless inputs wait in their socket meanwhile.
+(`latest`, `fifo`) into the policy queues, so `latest` really is the newest frame even while the model runs,
+and reads acknowledgements of lossless outputs. Other (lossless) inputs wait in their socket meanwhile.
 The loop never blocks for more than `_TICK_S`; `request_stop()` (signal handlers, the launcher) ends it.
 `shutdown()` is idempotent.
 
@@ -395,11 +395,12 @@ class Node:
         self._ack_readers = {e.acks: e.buffer for o in self._outputs.values() for e in o.edges
                              if e.acks is not None and e.buffer is not None}
         # A receive thread reads while process()/produce() runs only where that is needed: an input that drops
-        # (`latest`, `fifo`) must count its drops as they happen and keep the newest frame, and a source must
-        # hear its consumers' acknowledgements (a restarted consumer waits for its resync). Lossless inputs
-        # need none: their frames wait in the socket while the model runs (backpressure, as a full queue).
+        # (`latest`, `fifo`) must count its drops as they happen and keep the newest frame, and acknowledgements
+        # must be heard promptly (a restarted consumer waits for its resync; acknowledged frames leave the resend
+        # buffer). Lossless inputs need none: their frames wait in the socket while the model runs
+        # (backpressure, as a full queue).
         drops = any(w.policy.policy != "lossless" for w in self.wiring.inputs.values())
-        if (self._receivers or self._ack_readers) and (drops or not self.INPUTS):
+        if self._ack_readers or (self._receivers and drops):
             endpoint = f"inproc://{self.name}-{self.session}-interrupt"
             self._interrupt_in = self.context.socket(zmq.PAIR)
             self._interrupt_in.bind(endpoint)
