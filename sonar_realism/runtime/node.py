@@ -179,6 +179,10 @@ class Node:
         raises NodeStopped if a stop request arrives while waiting."""
         out = self._outputs[output]
         parts = encode_frame(frame, out.wiring.topic, provenance)  # encode fully first: no half-sent message
+        # One zmq message for the samples, shared by every socket they go to (and any resend): a zero-copy
+        # message wakes pyzmq's garbage-collector thread, which takes the GIL, once when libzmq is done with it,
+        # not once per socket. (Under zmq.COPY_THRESHOLD bytes it is one copy, not one per socket.)
+        parts[2] = zmq.Frame(parts[2])
         for edge in out.edges:
             if edge.buffer is not None:
                 self._settle_outputs()
