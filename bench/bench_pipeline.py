@@ -36,6 +36,7 @@ Goal (issue): transport + framing add <= 2 ms at p99 and cost <= 10 % of through
 # No `from __future__ import annotations`: bench/run.py loads this file without putting it in sys.modules, and
 # dataclasses cannot resolve string annotations of such a module.
 import argparse
+import gc
 import math
 import os
 import socket
@@ -54,6 +55,10 @@ import zmq
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+# This process stands in for the source and receiver nodes, which run with OpenMP threads that sleep between calls
+# (runtime/process.py); its own torch (the compute-only series) must not spin on the cores after each call while
+# the next latency trip runs. Has no effect when torch was loaded before this module (bench/run.py runs others).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.runtime.delivery import InputPolicy  # noqa: E402
@@ -411,6 +416,8 @@ def run(frames: int = DEFAULT_FRAMES, device: str = "auto", samples: Sequence[in
 
     translator = Translator.from_checkpoint(DEFAULT_CHECKPOINT, device=device)
     pool = simulated_frames(POOL)
+    gc.collect()
+    gc.freeze()  # as in a node (Node.run): the receiver's timing must not include a full collection over torch
     context = zmq.Context()
     rows = []
     try:

@@ -4,14 +4,14 @@
 
 Each input is tried as one ping message (`decode_ping`) and as a whole recording (`read_oculus` on a file in
 /dev/shm when it exists): raw message streams and V1 logs, compressed or not. Anything but frames or
-FormatError is a crash, and so is an input that makes a reader allocate more than 64 MiB at once (tracemalloc
-peak; numpy buffers are traced too). The corpus starts from valid pings,
-raw streams and logs; interesting inputs are kept in tests/data/fuzz/oculus_inputs.json and replayed by
-tests/test_fuzz_regressions.py.
+FormatError is a crash, and so is an input that makes a reader allocate more than 64 MiB at once (address-space
+limit, fuzz_harness.bounded). The corpus starts from valid pings, raw streams and logs and the inputs earlier
+runs found interesting, kept in tests/data/fuzz/oculus_inputs.json and replayed by tests/test_fuzz_regressions.py.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import tempfile
@@ -51,7 +51,8 @@ def seeds() -> list[bytes]:
     sys.path.insert(0, str(ROOT / "tests"))
     from test_oculus_fuzz import PINGS, RECORDINGS
 
-    return [*PINGS, *RECORDINGS]
+    found = json.loads((ROOT / "tests" / "data" / "fuzz" / "oculus_inputs.json").read_text())["inputs"]
+    return [*PINGS, *RECORDINGS, *map(bytes.fromhex, found)]
 
 
 if __name__ == "__main__":

@@ -4,10 +4,10 @@
 
 A fuzz input is a multipart message: [n_parts: u8] then, per part, [length: u32 LE][bytes] (the last part
 takes the rest). The corpus starts from every conformance vector (conformance/). Anything but a clean decode
-or WireError is a crash; so is an input that makes the decoder allocate more than 64 MiB at once (tracemalloc
-peak) or a decoded frame whose samples do not match its data part. Inputs that cover new
-code are written to the corpus folder; the interesting ones are kept in tests/data/fuzz/wire_messages.json and replayed
-by tests/test_fuzz_regressions.py.
+or WireError is a crash; so is an input that makes the decoder allocate more than 64 MiB at once (address-space
+limit, fuzz_harness.bounded; also when the decoder wraps the MemoryError in a WireError) or a decoded frame
+whose samples do not match its data part. Inputs that cover new code are written to the corpus folder; the
+interesting ones are kept in tests/data/fuzz/wire_messages.json and replayed by tests/test_fuzz_regressions.py.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy  # noqa: F401
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fuzz_harness import fuzz  # noqa: E402  (beside this script)
+from fuzz_harness import fuzz, refused_allocation  # noqa: E402  (beside this script)
 
 with atheris.instrument_imports():
     from sonar_realism.errors import WireError
@@ -63,7 +63,8 @@ def decode(data: bytes) -> None:
     parts = split_parts(data)
     try:
         message = decode_message(parts)
-    except WireError:
+    except WireError as error:
+        assert not refused_allocation(error), "one input needed more than 64 MiB at once (wrapped in a WireError)"
         return
     if message.kind == FRAME_TYPE:
         frame = message.body

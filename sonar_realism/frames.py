@@ -6,6 +6,7 @@ or `intensity[sample, range_bin, beam]` when a translator returns several sample
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import math
 import threading
@@ -68,7 +69,7 @@ class SonarImage:
             raise FrameError(f"intensity: expected [ranges, beams] or [samples, ranges, beams], got shape {shape}")
         if 0 in shape:
             raise FrameError(f"intensity: empty shape {shape}")
-        if dtype.kind == "f" and not np.isfinite(intensity).all():
+        if dtype.kind == "f" and intensity is not _CHECKED_INTENSITY.get() and not all_finite(intensity):
             raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
 
         object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", shape[-2]))
@@ -126,13 +127,45 @@ class SonarImage:
         return self.replace(intensity=self.intensity[index])
 
     def replace(self, **changes: Any) -> SonarImage:
-        """A copy with some fields changed, validated again."""
-        return dataclasses.replace(self, **changes)
+        """A copy with some fields changed, validated again; an unchanged intensity is not scanned for NaN/inf
+        again (it was when this frame was made: a pass over every sample that a relabelled frame, e.g. a
+        translator's output stamped with its input's seq, need not pay twice)."""
+        if "intensity" in changes:
+            return dataclasses.replace(self, **changes)
+        token = _CHECKED_INTENSITY.set(self.intensity)
+        try:
+            return dataclasses.replace(self, **changes)
+        finally:
+            _CHECKED_INTENSITY.reset(token)
 
     def same_geometry(self, other: SonarImage, atol: float = 1e-6) -> bool:
         return (self.n_ranges == other.n_ranges and self.n_beams == other.n_beams
                 and np.allclose(self.ranges_m, other.ranges_m, atol=atol)
                 and np.allclose(self.azimuths_rad, other.azimuths_rad, atol=atol))
+
+
+# The intensity of the frame being replace()d: already checked, so its SonarImage copy skips the NaN/inf pass.
+_CHECKED_INTENSITY: contextvars.ContextVar[np.ndarray | None] = contextvars.ContextVar("checked_intensity",
+                                                                                       default=None)
+
+# Per native float dtype: the unsigned int of its width and the bit pattern of +inf. A float read as that int is
+# below +inf's pattern exactly when it is finite and its sign bit is clear (NaN and -0.0 included in "not").
+_INF_BITS = {np.dtype(np.float32): (np.dtype(np.uint32), 0x7F800000),
+             np.dtype(np.float64): (np.dtype(np.uint64), 0x7FF0000000000000)}
+
+
+def all_finite(values: np.ndarray) -> bool:
+    """Whether every element of a float array is finite (no NaN, no ±inf).
+
+    One integer max over the elements' bits, without a temporary array, settles it for arrays with no negative
+    element (sonar intensities): a max below +inf's bit pattern means every element is a finite float >= +0.
+    Anything else (a negative element, -0.0, NaN or ±inf, a non-native byte order) is decided by the exact
+    elementwise check, so the answer never differs from `np.isfinite(values).all()`.
+    """
+    bits = _INF_BITS.get(values.dtype)
+    if bits is not None and values.size and values.view(bits[0]).max() < bits[1]:
+        return True
+    return bool(np.isfinite(values).all())
 
 
 def checked_axis(values: Any, name: str, expected_len: int) -> np.ndarray:

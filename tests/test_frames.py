@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from sonar_realism import FrameError, SonarImage
-from sonar_realism.frames import checked_axis, uniform_azimuths, uniform_ranges
+from sonar_realism.frames import all_finite, checked_axis, uniform_azimuths, uniform_ranges
 
 
 def make(shape=(64, 32), dtype=np.uint8, **kw):
@@ -48,9 +48,40 @@ def test_bad_shapes():
 
 def test_non_finite_float_rejected():
     intensity = np.zeros((8, 4), np.float32)
-    intensity[3, 2] = np.nan
+    for bad in (np.nan, np.inf, -np.inf):
+        intensity[3, 2] = bad
+        with pytest.raises(FrameError, match="NaN"):
+            SonarImage(intensity, uniform_ranges(8, 5), uniform_azimuths(4, 1.0))
+
+
+SPECIAL_VALUES = (np.nan, -np.nan, np.inf, -np.inf, -0.0, 0.0, -1.0, 1e-45, 5e-324, 3.4e38, -3.4e38, 1.7e308)
+
+
+@pytest.mark.parametrize("dtype", ["<f4", ">f4", "<f8", ">f8"])
+def test_all_finite_agrees_with_isfinite_on_every_special_value(dtype):
+    # The fast path reads the samples' bits as unsigned ints: NaNs of either sign, ±inf, -0.0, negatives,
+    # subnormals and the largest finite values, alone and mixed, in contiguous and strided arrays.
+    rng = np.random.default_rng(0)
+    for value in SPECIAL_VALUES:
+        for others in (0.5, -0.5, 0.0):
+            with np.errstate(over="ignore"):
+                values = np.full((6, 10), others, dtype=dtype)
+                values[rng.integers(6), rng.integers(10)] = value
+            for view in (values, values[:, ::3], values.T, values[2:3]):
+                assert all_finite(view) == bool(np.isfinite(view).all()), (dtype, value, others)
+    assert all_finite(np.zeros((0, 3), dtype))
+
+
+def test_replace_scans_a_new_intensity_but_not_the_unchanged_one():
+    frame = make(dtype=np.float32)
+    frame.intensity[1, 1] = np.nan  # written after the frame was checked: replace() trusts that check
+    assert frame.replace(seq=7).seq == 7
     with pytest.raises(FrameError, match="NaN"):
-        SonarImage(intensity, uniform_ranges(8, 5), uniform_azimuths(4, 1.0))
+        frame.replace(intensity=frame.intensity.copy())
+    with pytest.raises(FrameError, match="seq"):
+        frame.replace(seq=-1)  # everything else is still checked
+    with pytest.raises(FrameError, match="NaN"):  # and only within replace(): a new frame is checked in full
+        SonarImage(frame.intensity, frame.ranges_m, frame.azimuths_rad)
 
 
 def test_geometry_must_match_and_increase():

@@ -9,8 +9,11 @@ and OUTPUTS (name -> topic type), and overrides some of:
 It calls `publish(output, frame, provenance)` and `record_inference(ms, n_frames)`.
 
 Lifecycle of `run()`: configure -> bind outputs -> wait until every expected consumer is subscribed
--> connect inputs (a receive thread keeps draining them into the policy queues, so `latest` really is
-the newest frame even while the model runs) -> loop -> finish -> end of stream -> shutdown.
+-> connect inputs -> loop -> finish -> end of stream -> shutdown. While the node waits for news, its own
+thread reads the inputs, so a frame that finds it idle is received, decoded and processed without a hand-over
+between threads; while process() or produce() runs, a receive thread keeps draining inputs that drop
+(`latest`, `fifo`) into the policy queues, so `latest` really is the newest frame even while the model runs,
+and reads acknowledgements of lossless outputs. Other (lossless) inputs wait in their socket meanwhile.
 The loop never blocks for more than `_TICK_S`; `request_stop()` (signal handlers, the launcher) ends it.
 `shutdown()` is idempotent.
 
@@ -27,6 +30,7 @@ restart it).
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import threading
@@ -143,6 +147,15 @@ class Node:
         self._status_socket: zmq.Socket | None = None
         self._status_subscribers = 0
         self._pump: threading.Thread | None = None
+        # Input and acknowledgement sockets, used by one thread at a time, the one holding _sockets_held: the
+        # main thread inside _wait_for_news, the receive thread otherwise (while _sockets_lent is set); the main
+        # thread alone where no receive thread is needed (_start_input_pump).
+        self._receivers: dict[zmq.Socket, str] = {}
+        self._ack_readers: dict[zmq.Socket, ResendBuffer] = {}
+        self._sockets_lent = threading.Event()
+        self._sockets_held = threading.Lock()
+        self._interrupt_in: zmq.Socket | None = None   # in every poll of those sockets; _reclaim_sockets writes
+        self._interrupt_out: zmq.Socket | None = None
         self._parent_pid = os.getppid()
         self._closed = False
 
@@ -166,6 +179,10 @@ class Node:
         raises NodeStopped if a stop request arrives while waiting."""
         out = self._outputs[output]
         parts = encode_frame(frame, out.wiring.topic, provenance)  # encode fully first: no half-sent message
+        # One zmq message for the samples, shared by every socket they go to (and any resend): a zero-copy
+        # message wakes pyzmq's garbage-collector thread, which takes the GIL, once when libzmq is done with it,
+        # not once per socket. (Under zmq.COPY_THRESHOLD bytes it is one copy, not one per socket.)
+        parts[2] = zmq.Frame(parts[2])
         for edge in out.edges:
             if edge.buffer is not None:
                 self._settle_outputs()
@@ -244,6 +261,11 @@ class Node:
         """configure -> run -> shutdown. Raises what configure/process/produce raise (after shutting down)."""
         try:
             self.configure()
+            # A full collection walks every object alive; with torch and a model loaded that is ~180 000 objects
+            # and ~0.1 s, a pause in the middle of the stream whenever it comes. What configure() made lives as
+            # long as the node: frozen, it is left out of every collection.
+            gc.collect()
+            gc.freeze()
             self._open_outputs()
             self._send_status()
             try:
@@ -272,7 +294,12 @@ class Node:
         self._stop.set()
         self._closing.set()
         if self._pump is not None:
+            self._interrupt_out.send(b"", zmq.NOBLOCK)
             self._pump.join(timeout=5.0)
+            self._interrupt_in.close(linger=0)
+            self._interrupt_out.close(linger=0)
+        for sock in self._receivers:
+            sock.close(linger=0)
         self._send_status()
         for out in self._outputs.values():
             out.xpub.close(linger=0)
@@ -359,8 +386,33 @@ class Node:
                 state.ack_socket.connect(state.wiring.ack_endpoint)
                 state.ack_socket.send(hello_message(self.session))  # queued until the producer is there
                 state.sync = InputSync(self.session)
-        if self.wiring.inputs or self._buffers():
+        for input_name, w in self.wiring.inputs.items():
+            sock = self.context.socket(zmq.PULL if w.socket_kind == "pull" else zmq.SUB)
+            sock.linger = 0
+            sock.rcvhwm = max(2, w.policy.capacity)
+            if w.socket_kind == "sub":
+                # An external publisher is heard on every topic, so frames on a topic nobody takes (a typo
+                # in the simulator's topic) are counted and reported instead of vanishing in the filter.
+                sock.setsockopt(zmq.SUBSCRIBE, w.topic.encode() if w.in_graph else b"")
+            sock.connect(w.endpoint)
+            self._receivers[sock] = input_name
+        self._ack_readers = {e.acks: e.buffer for o in self._outputs.values() for e in o.edges
+                             if e.acks is not None and e.buffer is not None}
+        # A receive thread reads while process()/produce() runs only where that is needed: an input that drops
+        # (`latest`, `fifo`) must count its drops as they happen and keep the newest frame, and acknowledgements
+        # must be heard promptly (a restarted consumer waits for its resync; acknowledged frames leave the resend
+        # buffer). Lossless inputs need none: their frames wait in the socket while the model runs
+        # (backpressure, as a full queue).
+        drops = any(w.policy.policy != "lossless" for w in self.wiring.inputs.values())
+        if self._ack_readers or (self._receivers and drops):
+            endpoint = f"inproc://{self.name}-{self.session}-interrupt"
+            self._interrupt_in = self.context.socket(zmq.PAIR)
+            self._interrupt_in.bind(endpoint)
+            self._interrupt_out = self.context.socket(zmq.PAIR)
+            self._interrupt_out.connect(endpoint)
             self._pump = threading.Thread(target=self._pump_inputs, name=f"{self.name}-inputs", daemon=True)
+            self._sockets_held.acquire()
+            self._lend_sockets()
             self._pump.start()
 
     def _buffers(self) -> list[ResendBuffer]:
@@ -399,9 +451,37 @@ class Node:
                     pass  # acknowledgements are cumulative: the next one covers this
 
     def _wait_for_news(self, timeout_s: float) -> None:
-        """Sleep until the receive thread has something (a frame, an acknowledgement) or `timeout_s`."""
-        self._wake.wait(timeout_s)
+        """Wait until something arrives (a frame, an acknowledgement) or `timeout_s`, reading the input and
+        acknowledgement sockets on this thread meanwhile: a frame that finds the node idle is received,
+        decoded and processed here, with no hand-over between threads. Outside this wait (while process()
+        or produce() runs) the receive thread reads them, where there is one (_start_input_pump)."""
+        if not (self._receivers or self._ack_readers):
+            self._wake.wait(timeout_s)
+        elif self._pump is None:
+            if not self._wake.is_set():
+                self._receive(timeout_s)
+        else:
+            self._reclaim_sockets()
+            try:
+                if not self._wake.is_set():  # the receive thread may have queued something as it let go
+                    self._receive(timeout_s)
+            finally:
+                self._lend_sockets()
         self._wake.clear()
+
+    def _lend_sockets(self) -> None:
+        """Hand the input and acknowledgement sockets to the receive thread (main thread; cheap)."""
+        self._sockets_held.release()
+        self._sockets_lent.set()
+
+    def _reclaim_sockets(self) -> None:
+        """Take the sockets back: cut the receive thread's poll short and wait until it has let go (zmq sockets
+        may change threads; the lock is the memory barrier that requires)."""
+        self._sockets_lent.clear()
+        self._interrupt_out.send(b"", zmq.NOBLOCK)
+        self._sockets_held.acquire()
+        while self._interrupt_in.poll(0):  # a cut the receive thread did not see must not cut our own poll short
+            self._interrupt_in.recv()
 
     def _loop(self) -> None:
         next_produce = time.monotonic() if not self.INPUTS else None
@@ -537,59 +617,50 @@ class Node:
 
     # ---- receive thread --------------------------------------------------------------------------
     def _pump_inputs(self) -> None:
-        """Owns the input sockets and the acknowledgement sockets of lossless outputs: drains inputs into the
-        policy queues (until a stop request, or every input ended) and hands acknowledgements to the resend
-        buffers (until shutdown: a stopping node still waits for its consumers' acknowledgements)."""
-        inputs: dict[zmq.Socket, str] = {}
-        acks = {e.acks: e.buffer for o in self._outputs.values() for e in o.edges if e.acks is not None}
-        try:
-            for input_name, w in self.wiring.inputs.items():
-                sock = self.context.socket(zmq.PULL if w.socket_kind == "pull" else zmq.SUB)
-                sock.linger = 0
-                sock.rcvhwm = max(2, w.policy.capacity)
-                if w.socket_kind == "sub":
-                    # An external publisher is heard on every topic, so frames on a topic nobody takes (a typo
-                    # in the simulator's topic) are counted and reported instead of vanishing in the filter.
-                    sock.setsockopt(zmq.SUBSCRIBE, w.topic.encode() if w.in_graph else b"")
-                sock.connect(w.endpoint)
-                inputs[sock] = input_name
-            while not self._closing.is_set() and (inputs or acks):
-                poller = zmq.Poller()
-                waiting_for_room = False
-                for sock, input_name in inputs.items():
-                    if self._stop.is_set():
-                        break
-                    if self.queues[input_name].has_room():
-                        poller.register(sock, zmq.POLLIN)
-                    else:
-                        waiting_for_room = True
-                for sock in acks:
-                    poller.register(sock, zmq.POLLIN)
-                if not poller.sockets:
-                    if waiting_for_room:
-                        next(iter(self.queues.values())).wait_for_room(_TICK_S)
-                    else:
-                        self._closing.wait(_TICK_S)
-                    continue
-                # A full queue frees up without any socket event: look again soon.
-                readable = dict(poller.poll(_ROOM_POLL_S * 1000 if waiting_for_room else _TICK_S * 1000))
-                for sock, buffer in acks.items():
-                    if sock in readable:
-                        self._read_acknowledgements(sock, buffer)
-                for sock, input_name in list(inputs.items()):
-                    w, queue = self.wiring.inputs[input_name], self.queues[input_name]
-                    if sock in readable:
-                        self._drain(sock, input_name)
-                    elif (w.in_graph and self._producers_ended.is_set() and queue.has_room()
-                          and not sock.poll(0)):
-                        queue.put(EndOfStream("producers ended"))
-                        self._wake.set()
-                    if queue.ended:
-                        sock.close(linger=0)  # hanging up tells an XPUB producer we got end of stream
-                        del inputs[sock]
-        finally:
-            for sock in inputs:
-                sock.close(linger=0)
+        """The receive thread: reads the inputs into the policy queues (until a stop request, or every input
+        ended) and hands acknowledgements to the resend buffers (until shutdown: a stopping node still waits
+        for its consumers' acknowledgements), whenever the main thread has lent it the sockets."""
+        while not self._closing.is_set():
+            if not self._sockets_lent.wait(_TICK_S):
+                continue
+            with self._sockets_held:  # lent may be taken back meanwhile: then this block ends at once
+                while self._sockets_lent.is_set() and not self._closing.is_set():
+                    self._receive(_TICK_S)
+
+    def _receive(self, timeout_s: float) -> None:
+        """One poll of the inputs and acknowledgement sockets (at most `timeout_s`), handling what is there;
+        run by whichever thread holds the sockets."""
+        poller = zmq.Poller()
+        if self._interrupt_in is not None:
+            poller.register(self._interrupt_in, zmq.POLLIN)
+        waiting_for_room = False
+        for sock, input_name in self._receivers.items():
+            if self._stop.is_set():
+                break
+            if self.queues[input_name].has_room():
+                poller.register(sock, zmq.POLLIN)
+            else:
+                waiting_for_room = True
+        for sock in self._ack_readers:
+            poller.register(sock, zmq.POLLIN)
+        # A full queue frees up without any socket event: look again soon.
+        readable = dict(poller.poll(min(timeout_s, _ROOM_POLL_S) * 1000 if waiting_for_room else timeout_s * 1000))
+        if self._interrupt_in is not None and self._interrupt_in in readable:
+            while self._interrupt_in.poll(0):
+                self._interrupt_in.recv()
+        for sock, buffer in self._ack_readers.items():
+            if sock in readable:
+                self._read_acknowledgements(sock, buffer)
+        for sock, input_name in list(self._receivers.items()):
+            w, queue = self.wiring.inputs[input_name], self.queues[input_name]
+            if sock in readable:
+                self._drain(sock, input_name)
+            elif w.in_graph and self._producers_ended.is_set() and queue.has_room() and not sock.poll(0):
+                queue.put(EndOfStream("producers ended"))
+                self._wake.set()
+            if queue.ended:
+                sock.close(linger=0)  # hanging up tells an XPUB producer we got end of stream
+                del self._receivers[sock]
 
     def _read_acknowledgements(self, sock: zmq.Socket, buffer: ResendBuffer) -> None:
         while True:

@@ -1,0 +1,52 @@
+"""The fuzzers' allocation bound (scripts/fuzz_harness.py): an input may make a decoder allocate at most 64 MiB
+more than the process holds when the input starts; more fails like a crash, also when the decoder turns the
+MemoryError into its own typed error."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("atheris")  # fuzzing extra (pip install .[fuzz]); the harness imports it
+
+
+def load_harness():
+    path = Path(__file__).resolve().parents[1] / "scripts" / "fuzz_harness.py"
+    spec = importlib.util.spec_from_file_location("fuzz_harness_under_test", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+harness = load_harness()
+
+
+def test_an_input_within_the_bound_passes_and_the_limit_is_lifted_afterwards():
+    harness.bounded(lambda data: np.ones(harness.MAX_ALLOCATION // 2, np.uint8).sum())(b"")
+    assert np.ones(2 * harness.MAX_ALLOCATION, np.uint8)[-1] == 1  # libFuzzer's own work is not bound
+
+
+@pytest.mark.parametrize("allocate", [lambda: np.ones(harness.MAX_ALLOCATION + (8 << 20), np.uint8),
+                                      lambda: bytearray(harness.MAX_ALLOCATION + (8 << 20))],
+                         ids=["numpy", "bytearray"])
+def test_an_input_that_needs_more_fails_like_a_crash(allocate):
+    with pytest.raises(AssertionError, match="more than"):
+        harness.bounded(lambda data: allocate())(b"")
+
+
+def test_a_memory_error_wrapped_in_a_typed_error_is_still_seen():
+    def decode(data: bytes) -> None:
+        try:
+            bytearray(harness.MAX_ALLOCATION + (8 << 20))
+        except MemoryError as error:
+            raise ValueError("not valid msgpack") from error
+
+    with pytest.raises(ValueError) as caught:
+        harness.bounded(decode)(b"")
+    assert harness.refused_allocation(caught.value)
+    assert not harness.refused_allocation(ValueError("an ordinary rejection"))
