@@ -21,7 +21,7 @@ from sonar_realism.diagnose.gap import (
 )
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
-from sonar_realism.diagnose.which import SelectionProblem, Solo, describe_pattern, fit_gain_pattern, greedy_select
+from sonar_realism.diagnose.which import SelectionProblem, Solo, greedy_select
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
@@ -158,29 +158,6 @@ def test_column_stripes_are_left_unexplained_at_their_beams():
             assert np.sign(spot.gain_db) == np.sign(gains_db[list(beams).index(spot.index)])
 
 
-def test_a_fixed_band_of_added_power_is_the_pattern_floor_at_its_rows():
-    # a reflection inside the housing adds power at one delay in every frame, where the scene may have none: no
-    # gain can make it, the pattern's floor does, and its place is the band's range
-    frames = sim_frames(16, seed=5)
-    sim, source = frames[0::2], frames[1::2]
-    band = np.zeros(SENSOR.n_ranges, dtype=np.float32)
-    band[60:66] = 0.25
-    real = np.stack([np.sqrt(f.normalized() ** 2 + band[:, None]) for f in source])
-    target = frame_statistics(real)
-    scale = FeatureScale.pooled(frame_statistics(np.stack([f.normalized() for f in sim])), target)
-    ranges_m, bearings_deg = sim[0].ranges_m, np.degrees(sim[0].azimuths_rad)
-    halves = (real[0::2], real[1::2])
-    problem = SelectionProblem(sim, target, tuple(h.mean(axis=0) for h in halves),
-                               tuple((h ** 2).mean(axis=(0, 2)) for h in halves), scale, lambda e, g: (0.0, None),
-                               None, None, 1.0, ranges_m, bearings_deg)
-    pattern = fit_gain_pattern(problem, [], FAST)
-    assert pattern.range_floor is not None
-    assert pattern.range_floor[60:66].min() > 0.1
-    assert np.median(pattern.range_floor) < 0.01
-    spots = describe_pattern(pattern, ranges_m, bearings_deg, 0.0, 0.0).floor_ranges
-    assert 58 <= spots[0].index <= 67 and spots[0].at == pytest.approx(ranges_m[spots[0].index])
-
-
 def test_bootstrap_frequency_splits_between_equals_and_goes_to_the_clearly_better():
     target = frame_statistics(np.sqrt(speckled(12, 5)))
     raw = speckled(12, 6)
@@ -236,8 +213,8 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
 
     ranked = [Solo(RankedEffect("motion_blur", a.params(), 0.6, 0.0, 0.4, 1.0), a, None),
               Solo(RankedEffect("beam_sidelobes", b.params(), 0.7, 0.0, 0.3, 0.0), b, None)]
-    problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, (np.zeros(128),) * 2, scale, holdout,
-                               None, None, 1.0, frames[0].ranges_m, np.degrees(frames[0].azimuths_rad))
+    problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
+                               frames[0].ranges_m, np.degrees(frames[0].azimuths_rad))
     config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(), max_effects=3,
                             min_gain=0.05, candidates_per_step=2, backfit=False, gain_check=False)
     pruned = greedy_select(ranked, problem, config)

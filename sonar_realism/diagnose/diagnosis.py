@@ -157,11 +157,10 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         reference = eval_frames[0]
     bearings_deg = np.degrees(reference.azimuths_rad)
     real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
-    real_row_power = ((real_fit[0::2] ** 2).mean(axis=(0, 2)), (real_fit[1::2] ** 2).mean(axis=(0, 2)))
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
-    problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, real_row_power, scale, holdout,
-                               real_hold_stats, raw_stats, gap_before, reference.ranges_m, bearings_deg, terms)
+    problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
+                               gap_before, reference.ranges_m, bearings_deg, terms)
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)

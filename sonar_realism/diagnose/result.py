@@ -136,9 +136,7 @@ class GainPatternFit:
     """A fixed gain pattern (per range and per beam, in dB, applied before any effect) fitted on top of a set of
     effects: its level and ramp over range; `range_db` / `beam_db` the whole profiles; `beams` / `ranges` the
     places where it stands out (isolated channels and the extremes of its smooth part); `gap` the held-out gap
-    with it; `share_of_gap` how much of the gap before it closes on top of the effects; `range_floor` the power
-    (of full scale 1) it adds per range row after the gain, `floor_ranges` where that floor peaks (`gain_db`: the
-    added power in dB of full scale)."""
+    with it; `share_of_gap` how much of the gap before it closes on top of the effects."""
 
     level_db: float
     ramp_db: float
@@ -148,16 +146,13 @@ class GainPatternFit:
     ranges: tuple[GainSpot, ...]
     gap: float
     share_of_gap: float
-    range_floor: tuple[float, ...] = ()
-    floor_ranges: tuple[GainSpot, ...] = ()
 
     def describe(self) -> str:
         def spots(items: tuple[GainSpot, ...], unit: str) -> str:
             return ", ".join(f"{s.at:.3g} {unit} ({s.gain_db:+.1f} dB)" for s in items) or "none"
 
-        floor = f"; power added at: {spots(self.floor_ranges, 'm')}" if self.floor_ranges else ""
         return (f"level {self.level_db:+.1f} dB, ramp {self.ramp_db:+.1f} dB over range; beams standing out: "
-                f"{spots(self.beams, 'deg')}; ranges standing out: {spots(self.ranges, 'm')}{floor}")
+                f"{spots(self.beams, 'deg')}; ranges standing out: {spots(self.ranges, 'm')}")
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,6 @@ GAIN_LIMIT_DB = 20.0
 SPOT_MIN_DB = 1.0
 MEASURED_WEIGHT = 0.3  # of the strongest row's or beam's weight (sqrt of mean signal): about 10% of its signal
 MAX_SPOTS = 8
-FLOOR_MIN_POWER = 1e-4  # a floor below -40 dB of full-scale power is not reported as a place
 
 
 @dataclass(frozen=True)
@@ -52,15 +51,12 @@ class GainPattern:
     """A fixed gain (dB) per range row and per beam, applied to the sim frames before any effect: not a sensor
     effect but the yardstick every selected effect must beat, and the form un-catalogued gain errors are reported
     in. An overall level and a linear ramp over range (searched on the statistics, as an effect's parameters are),
-    plus a shape per range and per beam (estimated from mean images: see fit_gain_pattern), and a floor of power
-    added per range row after the gain (a band at a fixed delay, on full-scale 1: a reflection inside the housing
-    adds power where the scene has none, which no gain can)."""
+    plus a shape per range and per beam (estimated from mean images: see fit_gain_pattern)."""
 
     level_db: float = 0.0
     ramp_db: float = 0.0
     range_shape_db: np.ndarray | None = None
     beam_shape_db: np.ndarray | None = None
-    range_floor: np.ndarray | None = None
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {"level_db": (-12.0, 12.0), "ramp_db": (-12.0, 12.0)}
     # A gain is one smooth dimension each: a finer search than the effects get is cheap and keeps the yardstick
     # from losing to an effect only because its grid missed a fraction of a dB.
@@ -68,11 +64,6 @@ class GainPattern:
 
     def params(self) -> dict[str, float]:
         return {"level_db": self.level_db, "ramp_db": self.ramp_db}
-
-    @property
-    def shaped(self) -> bool:
-        """More than a level and a ramp: a range or beam shape or a floor (dozens of numbers, not two)."""
-        return any(v is not None for v in (self.range_shape_db, self.beam_shape_db, self.range_floor))
 
     def profiles(self, n_ranges: int, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
         """Gain in dB per range row and per beam."""
@@ -85,13 +76,6 @@ class GainPattern:
     def factor(self, n_ranges: int, n_beams: int) -> np.ndarray:
         range_db, beam_db = self.profiles(n_ranges, n_beams)
         return (10 ** ((range_db[:, None] + beam_db[None, :]) / 20)).astype(np.float32)
-
-    def apply(self, image: np.ndarray, factor: np.ndarray) -> np.ndarray:
-        """`image` (amplitude) times the gain `factor`, with the range floor added in power."""
-        gained = image * factor
-        if self.range_floor is None:
-            return gained
-        return np.sqrt(gained * gained + self.range_floor.astype(np.float32)[:, None])
 
 
 @dataclass(frozen=True)
@@ -112,7 +96,7 @@ def corrected_images(frames: Sequence[SonarImage], effects: Sequence[Effect], se
     out = []
     for frame in frames:
         if factor is not None:
-            frame = frame.replace(intensity=gain.apply(frame.normalized(), factor), intensity_scale=1.0)
+            frame = frame.replace(intensity=frame.normalized() * factor, intensity_scale=1.0)
         if terms:
             frame = apply_scene_terms(frame, terms, rng)
         corrected = apply_effects(frame, sensor, rng) if sensor else frame
@@ -229,22 +213,10 @@ def fit_gain_pattern(problem: SelectionProblem, base: Sequence[Effect], config: 
                for r, s in zip(problem.fit_real_halves, sim_halves, strict=True)]
     beam_shape = _fixed_shape([_ratio_db(*pair) for pair in columns], _weight(columns), detrend=False)
     shaped = dataclasses.replace(line, range_shape_db=range_shape, beam_shape_db=beam_shape)
-    # A band of added power competes with the range shape for the same rows (a gain sags or lifts what the scene
-    # has; a floor adds where it has nothing): the floor is what the real rows have in power beyond the sim's with
-    # the level, ramp and beam shape, in both halves, and the better of the two by the fit-split gap is kept.
-    beamed = dataclasses.replace(line, beam_shape_db=beam_shape)
-    squares = corrected_images(frames, base, search.seed, config.normalize, gain=beamed) ** 2
-    sim_power = (squares[0::2].mean(axis=(0, 2)), (squares[1::2] if len(squares) > 1 else squares).mean(axis=(0, 2)))
-    floor = np.maximum(_agree(*(r - s for r, s in zip(problem.fit_real_row_power, sim_power, strict=True))), 0.0)
-    best, best_gap = line, line_gap
-    for candidate in (shaped, dataclasses.replace(beamed, range_floor=floor)):
-        try:
-            candidate_gap = fit_gap(candidate)
-        except FrameError:
-            continue
-        if candidate_gap < best_gap:
-            best, best_gap = candidate, candidate_gap
-    return best
+    try:
+        return shaped if fit_gap(shaped) < line_gap else line
+    except FrameError:
+        return line
 
 
 def _ratio_db(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
@@ -302,24 +274,10 @@ def _isolated(deviation: np.ndarray) -> np.ndarray:
 def describe_pattern(pattern: GainPattern, ranges_m: np.ndarray, bearings_deg: np.ndarray, gap_with: float,
                      share: float) -> GainPatternFit:
     range_db, beam_db = pattern.profiles(len(ranges_m), len(bearings_deg))
-    floor = pattern.range_floor if pattern.range_floor is not None else np.zeros(len(ranges_m))
     return GainPatternFit(level_db=pattern.level_db, ramp_db=pattern.ramp_db,
                           range_db=tuple(float(v) for v in range_db), beam_db=tuple(float(v) for v in beam_db),
                           beams=_spots(beam_db, bearings_deg), ranges=_spots(range_db - np.median(range_db), ranges_m),
-                          gap=gap_with, share_of_gap=share, range_floor=tuple(float(v) for v in floor),
-                          floor_ranges=_floor_spots(floor, ranges_m))
-
-
-def _floor_spots(floor: np.ndarray, ranges_m: np.ndarray) -> tuple[GainSpot, ...]:
-    """The rows where the added floor peaks (strongest first, one per band), in dB of full-scale power."""
-    spots: list[int] = []
-    width = _width(len(floor))
-    for i in np.argsort(-floor):
-        if floor[i] <= FLOOR_MIN_POWER or len(spots) == MAX_SPOTS:
-            break
-        if all(abs(int(i) - j) > width for j in spots):
-            spots.append(int(i))
-    return tuple(GainSpot(i, float(ranges_m[i]), float(10 * np.log10(floor[i]))) for i in spots)
+                          gap=gap_with, share_of_gap=share)
 
 
 def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
@@ -336,8 +294,7 @@ def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
 @dataclass(frozen=True)
 class SelectionProblem:
     """The data a selection works on: the sim frames and real statistics of the fit split (`fit_real_halves`:
-    the mean images of two halves of the real fit frames, and `fit_real_row_power` their mean power per range
-    row, for the gain pattern), the held-out judge
+    the mean images of two halves of the real fit frames, for the gain pattern), the held-out judge
     `holdout(effects, gain)` -> (gap, statistics or None), the held-out real statistics `target` and the raw sim's
     `stats_before` (None: no significance test, no bootstrap frequencies), and the gap before. `ranges_m` /
     `bearings_deg` place a gain pattern. `scene_terms`: the geometry and scene candidates' starting points (empty:
@@ -346,7 +303,6 @@ class SelectionProblem:
     fit_frames: Sequence[SonarImage]
     fit_target: Stats
     fit_real_halves: tuple[np.ndarray, np.ndarray]
-    fit_real_row_power: tuple[np.ndarray, np.ndarray]
     scale: FeatureScale
     holdout: Callable[[Sequence[Effect], GainPattern | None], tuple[float, Stats | None]]
     target: Stats | None
@@ -562,14 +518,18 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         # parsimony: a level and a ramp (two numbers, as an effect has) need only do as well; a pattern with a
         # shape (dozens of numbers) must do better beyond the noise, or a ghost that brightens the far range
         # (multipath) is lost to a range shape that mimics its mean
-        replaced = current >= gap_gain and (not pattern.shaped
+        replaced = current >= gap_gain and (pattern.range_shape_db is None
                                             or lower_bound(current_stats, stats_gain, 200 + index)[1] > 0)
         # and the effect must add to what a fixed pattern explains: with a pattern on top of both sides, the set
         # with it must still be better by min_gain and beyond the noise. A stand-in for a fixed fault the catalogue
         # lacks (sidelobes filling a band at one range) explains a part of what the pattern explains, nothing more.
         added = gap_gain - on_top[0]
-        adds = (added >= c.min_gain * max(gap_before, 1e-12)
-                and lower_bound(stats_gain, on_top[1], 300 + index)[1] > 0)
+        lower_added = lower_bound(stats_gain, on_top[1], 300 + index)[1]
+        adds = added >= c.min_gain * max(gap_before, 1e-12) and lower_added > 0
+        if progress:
+            progress(f"{name} beside a gain pattern: held-out gap {on_top[0]:.4g} with it, {gap_gain:.4g} with the "
+                     f"pattern alone in its place (lower bound of the difference {lower_added:.3g}); without any "
+                     f"pattern {current:.4g}")
         if not replaced and adds:
             continue
         rest = refit_each([e for e in chosen if e is not effect])
