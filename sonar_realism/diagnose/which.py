@@ -520,12 +520,14 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         # (multipath) is lost to a range shape that mimics its mean
         replaced = current >= gap_gain and (pattern.range_shape_db is None
                                             or lower_bound(current_stats, stats_gain, 200 + index)[1] > 0)
-        # and the effect must add to what a fixed pattern explains: with a pattern on top of both sides, the set
-        # with it must still be better by min_gain and beyond the noise. A stand-in for a fixed fault the catalogue
-        # lacks (sidelobes filling a band at one range) explains a part of what the pattern explains, nothing more.
+        # and a sensor effect must add to what a fixed pattern explains: with a pattern on top of both sides, the
+        # set with it must still be better by min_gain and beyond the noise. A stand-in for a fixed fault the
+        # catalogue lacks (a per-ping random beam gain for stripes fixed in every frame) explains a part of what the
+        # pattern explains, nothing more. A geometry or scene term is exempt: a different mounting *is* a fixed
+        # pattern over range (the seabed onset), and the term is its physical explanation, which a gain only mimics.
         added = gap_gain - on_top[0]
         lower_added = lower_bound(stats_gain, on_top[1], 300 + index)[1]
-        adds = added >= c.min_gain * max(gap_before, 1e-12) and lower_added > 0
+        adds = kind_of(effect) != "effect" or (added >= c.min_gain * max(gap_before, 1e-12) and lower_added > 0)
         if progress:
             progress(f"{name} beside a gain pattern: held-out gap {on_top[0]:.4g} with it, {gap_gain:.4g} with the "
                      f"pattern alone in its place (lower bound of the difference {lower_added:.3g}); without any "
