@@ -501,38 +501,20 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         pattern = fit_gain_pattern(problem, rest, c)
         return (pattern, *holdout(rest, pattern))
 
-    def with_pattern_on_top() -> tuple[float, Stats | None]:
-        """The whole set with a gain pattern fitted on top of it, or as it stands if the pattern does not help."""
-        both = holdout(chosen, fit_gain_pattern(problem, chosen, c))
-        return both if both[0] < current else (current, current_stats)
-
     stand_ins = []
     # every selected effect's stand-in pattern at once; one is refitted only if an earlier one was dropped
     patterns = dict(zip([e.name for e in chosen], parallel_map(pattern_in_place_of, chosen, c.workers),
                         strict=True)) if c.gain_check else {}
-    on_top = with_pattern_on_top() if patterns else (current, current_stats)
     changed = False
     for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
         pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
+        if current < gap_gain:
+            continue
         # parsimony: a level and a ramp (two numbers, as an effect has) need only do as well; a pattern with a
         # shape (dozens of numbers) must do better beyond the noise, or a ghost that brightens the far range
         # (multipath) is lost to a range shape that mimics its mean
-        replaced = current >= gap_gain and (pattern.range_shape_db is None
-                                            or lower_bound(current_stats, stats_gain, 200 + index)[1] > 0)
-        # and a sensor effect must add to what a fixed pattern explains: with a pattern on top of both sides, the
-        # set with it must still be better by min_gain and beyond the noise. A stand-in for a fixed fault the
-        # catalogue lacks (a per-ping random beam gain for stripes fixed in every frame) explains a part of what the
-        # pattern explains, nothing more. A geometry or scene term is exempt: a different mounting *is* a fixed
-        # pattern over range (the seabed onset), and the term is its physical explanation, which a gain only mimics.
-        added = gap_gain - on_top[0]
-        lower_added = lower_bound(stats_gain, on_top[1], 300 + index)[1]
-        adds = kind_of(effect) != "effect" or (added >= c.min_gain * max(gap_before, 1e-12) and lower_added > 0)
-        if progress:
-            progress(f"{name} beside a gain pattern: held-out gap {on_top[0]:.4g} with it, {gap_gain:.4g} with the "
-                     f"pattern alone in its place (lower bound of the difference {lower_added:.3g}); without any "
-                     f"pattern {current:.4g}")
-        if not replaced and adds:
+        if pattern.range_shape_db is not None and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0:
             continue
         rest = refit_each([e for e in chosen if e is not effect])
         gap_rest, stats_rest = holdout(rest)
@@ -540,10 +522,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
                                gap_closed(gap_before, gap_gain) - gap_closed(gap_before, gap_rest))
         stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain))
         chosen, current, current_stats, changed = rest, gap_rest, stats_rest, True
-        on_top = with_pattern_on_top() if chosen else (current, current_stats)
         path.append(Step("gain_stand_in", effect.name, gap_rest))
         if progress:
-            reason = "does no more than" if replaced else "adds nothing significant beyond"
-            progress(f"{effect.name} {reason} a gain pattern ({fit.describe()}): not blamed; held-out "
+            progress(f"{effect.name} does no more than a gain pattern ({fit.describe()}): not blamed; held-out "
                      f"gap {gap_rest:.4g}")
     return Selection(chosen, path, stopped, stand_ins, current, current_stats)
