@@ -274,4 +274,3 @@ def test_bad_input_says_what_is_needed(tmp_path, capsys):
                  str(tmp_path / "out")])
     assert code == 2
     assert "error" in capsys.readouterr().err
-

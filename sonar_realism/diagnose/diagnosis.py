@@ -263,7 +263,7 @@ def _selected_effects(selection: Selection, gap_before: float) -> tuple[Selected
 def _ambiguous_groups(path: Sequence[Step], gap_before: float, threshold: float,
                       selected: Sequence[str]) -> tuple[AmbiguousGroup, ...]:
     """Steps that named a selected effect but could not tell it from others: the pick won fewer than 1 - `threshold`
-    of the resamples (one rival winning `threshold` of them, or several sharing as much). The group is the pick
+    of the resamples (one rival or several together winning more than `threshold`). The group is the pick
     and every rival that won at least half of `threshold` (at least the strongest), each with the share of the gap
     before it would close at that step. A step whose pick was later pruned or replaced by a gain pattern names
     nothing."""
