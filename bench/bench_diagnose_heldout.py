@@ -201,9 +201,13 @@ def accuracy(settings: str, config: DiagnoseConfig, log: Callable[[str], None],
         real_source = clean_frames(scene_name, n, REAL_SEED)
         draws = np.random.default_rng([2026, n, len(scene_name)])
         cases: list[tuple[str | None, str]] = [(None, "null")]
-        cases += [(name, mode) for mode in modes for name in implementations(first_only, only)]
+        cases += [(name, mode) for mode in modes for name in implementations(first_only)]
+        kept = set(implementations(first_only, only))
         for index, (name, mode) in enumerate(cases):
+            # every case draws, so a case run with --only gets the parameters and seed it has in the full run
             params = IMPLEMENTATIONS[name].draw(mode, draws) if name else {}  # type: ignore[arg-type]
+            if name and name not in kept:
+                continue
             row = {"scene": scene_name, "frames": n,
                    **run_case(sim, real_source, name, mode, params, config, index, scene)}
             rows.append(row)
@@ -359,7 +363,8 @@ def main() -> int:
                         help=f"small diagnosis config, settings {QUICK_SETTINGS!r} (limits: 1st, 3rd, 5th value)")
     parser.add_argument("--settings", help=f"scene:frames[:inside+wide][:first],... (full default: {FULL_SETTINGS})")
     parser.add_argument("--only", default="", help="run only implementations whose name contains one of these "
-                                                   "comma-separated strings (e.g. range_blur,column_stripes)")
+                                                   "comma-separated strings (e.g. range_blur,column_stripes), with "
+                                                   "the parameters they have in the full run")
     parser.add_argument("--limits", action="store_true", help="detection-limit sweeps instead of the accuracy run")
     parser.add_argument("--repeats", type=int, default=3, help="repeats per sweep value (--limits)")
     parser.add_argument("--limit-frames", type=int, default=24, help="frames per set in the sweeps (--limits)")

@@ -174,10 +174,22 @@ def test_a_step_whose_runner_up_wins_often_is_reported_as_ambiguous():
                 Alternative("speckle", 0.9, 0.05))
     path = [Step("start", "none", 1.0), Step("add", "motion_blur", 0.40, step_one),
             Step("add", "tvg_noise", 0.20, (Alternative("tvg_noise", 0.20, 0.95), Alternative("speckle", 0.35, 0.05)))]
-    groups = _ambiguous_groups(path, 1.0, threshold=0.2)
+    groups = _ambiguous_groups(path, 1.0, threshold=0.2, selected=["motion_blur", "tvg_noise"])
     assert len(groups) == 1 and groups[0].step == 1
     assert [a.effect for a in groups[0].effects] == ["motion_blur", "range_blur"]
     assert groups[0].shares == pytest.approx((0.60, 0.58))
+
+
+def test_a_pick_that_several_rivals_share_is_ambiguous_and_a_removed_pick_names_nothing():
+    # no single rival wins 20 % of the resamples, but together they win 30 %: the pick is not a confident name
+    spread = (Alternative("motion_blur", 0.40, 0.70), Alternative("range_blur", 0.42, 0.15),
+              Alternative("beam_sidelobes", 0.43, 0.12), Alternative("speckle", 0.9, 0.03))
+    close_call = (Alternative("multipath", 0.30, 0.6), Alternative("interference", 0.31, 0.4))
+    path = [Step("start", "none", 1.0), Step("add", "motion_blur", 0.40, spread),
+            Step("add", "multipath", 0.30, close_call), Step("gain_stand_in", "multipath", 0.40)]
+    groups = _ambiguous_groups(path, 1.0, threshold=0.2, selected=["motion_blur"])
+    assert [[a.effect for a in g.effects] for g in groups] == [["motion_blur", "range_blur", "beam_sidelobes"]]
+    assert _ambiguous_groups(path, 1.0, threshold=0.2, selected=["motion_blur", "multipath"])[1].step == 2
 
 
 def test_too_few_frames_give_no_ranking_but_say_so():

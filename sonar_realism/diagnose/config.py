@@ -40,9 +40,9 @@ class DiagnoseConfig:
     that do no better than a fixed per-range and per-beam gain pattern; effects: the candidates (empty = the
     whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets
     exported that way); bootstrap: resamples of the held-out frames for every interval, test and selection
-    frequency; ambiguity: a candidate chosen over the step's pick in at least this share of the resamples makes
-    the step ambiguous (both are reported, with their shares); workers: processes that fit a step's candidates
-    side by side (the results do not depend on it)."""
+    frequency; ambiguity: a step whose pick wins fewer than 1 - this share of the resamples (its rivals together
+    win more) is ambiguous (pick and rivals are reported, with their shares); workers: processes that fit a
+    step's candidates side by side (the results do not depend on it)."""
 
     holdout_fraction: float = 0.5
     fit_frames: int = 8

@@ -202,7 +202,8 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         where=_where(unexplained, reference, config),
         worsened_cells=hot_cells(maps_after.cells - maps_before.cells, reference.ranges_m, reference.azimuths_rad),
         gain_pattern=gain_pattern)
-    ambiguous = _ambiguous_groups(selection.path, gap_before, config.ambiguity)
+    ambiguous = _ambiguous_groups(selection.path, gap_before, config.ambiguity,
+                                  [e.name for e in selection.effects])
     verdict: Verdict = ("not_enough_frames" if not enough else "residual_only" if not selection.effects
                         else "ambiguous" if ambiguous else "selected")
     return Diagnosis(
@@ -259,17 +260,22 @@ def _selected_effects(selection: Selection, gap_before: float) -> tuple[Selected
                  for e in selection.effects)
 
 
-def _ambiguous_groups(path: Sequence[Step], gap_before: float, threshold: float) -> tuple[AmbiguousGroup, ...]:
-    """Steps whose pick lost to another candidate in at least `threshold` of the resamples: the pick and every such
-    candidate, each with the share of the gap before it would close at that step."""
+def _ambiguous_groups(path: Sequence[Step], gap_before: float, threshold: float,
+                      selected: Sequence[str]) -> tuple[AmbiguousGroup, ...]:
+    """Steps that named a selected effect but could not tell it from others: the pick won fewer than 1 - `threshold`
+    of the resamples (one rival or several together winning more than `threshold`). The group is the pick
+    and every rival that won at least half of `threshold` (at least the strongest), each with the share of the gap
+    before it would close at that step. A step whose pick was later pruned or replaced by a gain pattern names
+    nothing."""
     groups = []
     previous = gap_before
     for index, step in enumerate(path):
-        if step.action == "add":
-            rivals = [a for a in step.alternatives if a.effect != step.effect and a.frequency >= threshold]
-            if rivals:
-                pick = next(a for a in step.alternatives if a.effect == step.effect)
-                members = (pick, *sorted(rivals, key=lambda a: -a.frequency))
+        if step.action == "add" and step.effect in selected:
+            pick = next(a for a in step.alternatives if a.effect == step.effect)
+            rivals = sorted((a for a in step.alternatives if a.effect != step.effect and a.frequency > 0),
+                            key=lambda a: -a.frequency)
+            if rivals and pick.frequency < 1.0 - threshold:
+                members = (pick, *([a for a in rivals if a.frequency >= threshold / 2] or rivals[:1]))
                 shares = tuple((previous - a.gap) / gap_before if gap_before > 0 else 0.0 for a in members)
                 groups.append(AmbiguousGroup(index, members, shares))
         previous = step.gap
