@@ -98,12 +98,13 @@ def _running_median(values: np.ndarray) -> np.ndarray:
     return np.median(np.lib.stride_tricks.sliding_window_view(padded, ROW_BASE_ROWS), axis=1)
 
 
-def _row_deviation(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(log of each row's mean over its expected mean, rows where that is defined) of [ranges, beams]."""
+def _row_deviation(image: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(log of each row's mean over its expected mean, the rows it is taken on) of [ranges, beams]; by default
+    the rows whose expected mean is not black water (where there is no gain to see)."""
     means = image.mean(axis=1)
     base = _running_median(means)
-    rows = base > 0.02  # black water: no gain to see
-    return np.log(np.maximum(means[rows], 1e-4) / base[rows]), rows
+    rows = base > 0.02 if rows is None else rows
+    return np.log(np.maximum(means[rows], 1e-4) / np.maximum(base[rows], 1e-3)), rows
 
 
 def fit_row_gain(images: list[np.ndarray]) -> tuple[float, ...]:
@@ -115,10 +116,8 @@ def fit_row_gain(images: list[np.ndarray]) -> tuple[float, ...]:
         half = image.shape[1] // 2
         deviation, rows = _row_deviation(image)
         whole.append(deviation)
-        for side, part in ((left, image[:, :half]), (right, image[:, half:])):
-            means = part.mean(axis=1)
-            base = np.maximum(_running_median(means), 1e-3)
-            side.append(np.log(np.maximum(means[rows], 1e-4) / base[rows]))
+        left.append(_row_deviation(image[:, :half], rows)[0])
+        right.append(_row_deviation(image[:, half:], rows)[0])
     deviations, shared = np.concatenate(whole), np.cov(np.concatenate(left), np.concatenate(right))[0, 1]
     if deviations.size < 2 * ROW_GAIN_QUANTILES or deviations.var() <= 0:
         return ()
