@@ -148,13 +148,6 @@ class InputQueue:
             self._cond.notify_all()
             return out
 
-    def wait_for_room(self, timeout_s: float) -> bool:
-        with self._cond:
-            if self.has_room():
-                return True
-            self._cond.wait(timeout_s)
-            return self.policy.policy != "lossless" or self._frames < self.policy.capacity
-
     def _drop_oldest_frame(self) -> None:
         for index, item in enumerate(self._items):
             if not isinstance(item, EndOfStream):
