@@ -121,13 +121,17 @@ class SpeckleField(nn.Module):
         step = ((normal + NORMAL_SPAN) * ((DENSE_STEPS - 1) / (2 * NORMAL_SPAN))).round_().clamp_(0, DENSE_STEPS - 1)
         return torch.take(self._dense_quantiles, bins * DENSE_STEPS + step.long())
 
-    def sample(self, mean: np.ndarray, generator: torch.Generator | None) -> np.ndarray:
-        """Speckled, max-scaled, 8-bit-quantised samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W]."""
+    def sample(self, mean: np.ndarray, generator: torch.Generator | None,
+               row_gain: np.ndarray | None = None) -> np.ndarray:
+        """Speckled, max-scaled, 8-bit-quantised samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W];
+        `row_gain` [H] multiplies each range row before the export's scaling (a sensor's gain per range sample)."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's speckle statistics were never fitted")
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))
         bins = self.level_bins(mean_t)
         image = mean_t * self.ratios(bins, self.correlated_normal(bins, generator))
+        if row_gain is not None:
+            image *= torch.from_numpy(np.asarray(row_gain, np.float32))[None, :, None]
         peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
         image = torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS
         return image.numpy()

@@ -149,10 +149,9 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     level = frame.intensity.astype(np.float32)
     level = local_mean(level / max(float(level.max()), 1e-12))
     generator = torch.Generator().manual_seed(int(rng.integers(0, 2 ** 62)))
-    sample = _speckle_field(texture).sample(level[None], generator)[0]
+    row_gain = None
     if texture.row_gain_log_quantiles:
         table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
-        draws = np.interp(rng.random(sample.shape[0]), np.linspace(0.0, 1.0, table.size), table)
-        sample = sample * np.exp(draws).astype(np.float32)[:, None]
-        sample = sample / max(float(sample.max()), 1e-12)
+        row_gain = np.exp(np.interp(rng.random(level.shape[0]), np.linspace(0.0, 1.0, table.size), table))
+    sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
     return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
