@@ -3,10 +3,7 @@ says, keeps shape and dtype, and is fixed by its seed; the registry covers every
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +11,7 @@ import pytest
 from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, UNCATALOGUED, apply_held_out
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.effects import EFFECTS
+from tests.repo_script import load_repo_script
 
 TEN = ("speckle", "beam_sidelobes", "range_blur", "tvg_noise", "elevation_spread", "multipath", "motion_blur",
        "ring_down", "interference", "gamma_quantization")
@@ -225,11 +223,7 @@ def test_fan_gain_drift_tilts_the_fan():
 
 
 def test_the_bench_reads_a_diagnosis_from_the_design_contract_keys_alone():
-    path = Path(__file__).resolve().parents[1] / "bench" / "bench_diagnose_heldout.py"
-    spec = importlib.util.spec_from_file_location("bench_diagnose_heldout", path)
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = bench
-    spec.loader.exec_module(bench)
+    bench = load_repo_script("bench/bench_diagnose_heldout.py", "bench_diagnose_heldout")
     payload = {"gap_before": 2.0, "gap_after_selected": 0.5, "selected": ["range_blur", "motion_blur"],
                "ranked_effects": [{"name": "motion_blur", "params": {}, "gap_after": 1.2},
                                   {"name": "range_blur", "params": {}, "gap_after": 0.9}],

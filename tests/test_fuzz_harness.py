@@ -4,26 +4,14 @@ MemoryError into its own typed error."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from tests.repo_script import load_repo_script
+
 pytest.importorskip("atheris")  # fuzzing extra (pip install .[fuzz]); the harness imports it
 
-
-def load_harness():
-    path = Path(__file__).resolve().parents[1] / "scripts" / "fuzz_harness.py"
-    spec = importlib.util.spec_from_file_location("fuzz_harness_under_test", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-harness = load_harness()
+harness = load_repo_script("scripts/fuzz_harness.py", "fuzz_harness_under_test")
 
 
 def test_an_input_within_the_bound_passes_and_the_limit_is_lifted_afterwards():
