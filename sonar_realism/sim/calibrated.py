@@ -116,7 +116,8 @@ def calibrated_view(calibration: Calibration, seed: int, index: int, look: Seabe
         _place_target(maker, rng, calibration, pose, mode)
     scene = Scene("calibrated", int(rng.integers(2 ** 31)), seabed, tuple(maker.primitives), tuple(maker.objects),
                   trajectory=lambda n: [pose] * n, trajectory_kind="calibrated")
-    frame, mask = frame_for(scene, pose, sensor_for(mode, m.vertical_fov_deg), index)
+    # unclipped: the recording's bright returns (patches, rims) keep their range until the output mapping
+    frame, mask = frame_for(scene, pose, sensor_for(mode, m.vertical_fov_deg), index, clip=False)
     # The recording is rescaled per frame, so its absolute level is unknown: put the seabed at the level the
     # effect defaults assume (sand at 15 deg grazing), so signal-to-noise is the effects' to fit, not the tilt's.
     seabed = frame.intensity[(frame.intensity > 0) & (mask == 0)]
@@ -157,10 +158,14 @@ def finish(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect],
     frame = apply_effects(clean, before, rng) if before else clean
     if gain:
         frame = frame.replace(intensity=frame.intensity * residual_gain(calibration, frame))
+    if textured:
+        # the texture is drawn on the output level (it was fitted on the export) before 8-bit saturation: the
+        # speckled value saturates, not the mean (a clipped mean would be a flat plateau under uniform speckle)
+        if output:
+            frame = frame.replace(intensity=output[0].level(frame.intensity))
+        return apply_texture(calibration.texture, frame, rng)
     if output:
         frame = apply_effects(frame, output, rng)
-    if textured:  # on the output level (after the output mapping), as the texture was fitted on the export
-        return apply_texture(calibration.texture, frame, rng)
     if calibration.export_rescaled:
         frame = _rescale_to_max(frame)
     return frame

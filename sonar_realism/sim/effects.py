@@ -734,10 +734,14 @@ class GammaQuantization(Effect, order=100):
     CALIBRATED: ClassVar[tuple[str, ...]] = ("gamma",)
 
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
-        scaled = np.maximum(np.asarray(intensity, dtype=np.float32) * np.float32(self.gain), 0)
-        counts = cv2.pow(scaled.reshape(-1, scaled.shape[-1]), self.gamma).reshape(scaled.shape)
+        counts = self.level(intensity)
         # float -> uint8 conversion by cv2 rounds to nearest and saturates at 0 and 255 in one pass
-        return cv2.convertScaleAbs(counts.reshape(-1, scaled.shape[-1]), alpha=255.0).reshape(scaled.shape)
+        return cv2.convertScaleAbs(counts.reshape(-1, counts.shape[-1]), alpha=255.0).reshape(counts.shape)
+
+    def level(self, intensity: np.ndarray) -> np.ndarray:
+        """(gain * A)^gamma as float32, before quantisation and saturation (1.0 = full scale)."""
+        scaled = np.maximum(np.asarray(intensity, dtype=np.float32) * np.float32(self.gain), 0)
+        return cv2.pow(scaled.reshape(-1, scaled.shape[-1]), self.gamma).reshape(scaled.shape)
 
 
 # ----------------------------------------------------------------------------------------------- catalogue

@@ -27,9 +27,10 @@ def speckle_seed(scene: Scene, pose: Pose) -> int:
     return int.from_bytes(hashlib.blake2b(key.encode(), digest_size=8).digest(), "little")
 
 
-def frame_for(scene: Scene, pose: Pose, sensor: SensorConfig, index: int) -> tuple[SonarImage, np.ndarray]:
-    """The clean frame (float32 amplitude) and object mask at one pose."""
-    amplitude, mask = render(scene, pose, sensor)
+def frame_for(scene: Scene, pose: Pose, sensor: SensorConfig, index: int, clip: bool = True,
+              ) -> tuple[SonarImage, np.ndarray]:
+    """The clean frame (float32 amplitude; in [0, 1] with `clip`) and object mask at one pose."""
+    amplitude, mask = render(scene, pose, sensor, clip)
     meta: dict[str, Any] = {
         **sensor.meta(), "source": "sim", "scene": scene.name, "scene_seed": scene.seed,
         "trajectory": scene.trajectory_kind, "pose": pose.as_dict(), "sonar_altitude_m": pose.z,

@@ -142,16 +142,16 @@ def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
 
 
 def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Generator) -> SonarImage:
-    """The frame's local mean level times a fresh draw of the sensor's speckle, exported as the recording was
-    (scaled to its maximum, 8-bit)."""
+    """The frame's local mean level (the output mapping's, in full-scale units: 1.0 is 255) times a fresh draw
+    of the sensor's speckle, saturating at full scale, exported as the recording was (scaled to its maximum,
+    8-bit)."""
     import torch
 
-    level = frame.intensity.astype(np.float32)
-    level = local_mean(level / max(float(level.max()), 1e-12))
+    level = local_mean(frame.intensity.astype(np.float32))
     generator = torch.Generator().manual_seed(int(rng.integers(0, 2 ** 62)))
     row_gain = None
     if texture.row_gain_log_quantiles:
         table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
         row_gain = np.exp(np.interp(rng.random(level.shape[0]), np.linspace(0.0, 1.0, table.size), table))
-    sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
+    sample = _speckle_field(texture).sample(level[None], generator, row_gain, saturate=True)[0]
     return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
