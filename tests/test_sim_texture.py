@@ -98,7 +98,9 @@ def test_row_gain_fit_keeps_only_the_gain_the_whole_fan_shares() -> None:
 
 def test_row_gain_draws_lines_across_the_fan_and_old_files_without_it_still_load(texture, tmp_path) -> None:
     with_rows = dataclasses.replace(texture, row_gain_log_quantiles=fit_row_gain(row_gain_frames(0.15)))
-    calibration = dataclasses.replace(truth(), texture=with_rows)
+    # output gain low enough that nothing saturates: saturation (after the row gain, as in a receiver) clips lines
+    effects = {**truth().effects, "gamma_quantization": {**truth().effects["gamma_quantization"], "gain": 0.3}}
+    calibration = dataclasses.replace(truth(), texture=with_rows, effects=effects)
     clean, _ = calibrated_view(calibration, 0, 0)
     chain = calibrated_chain(calibration, "all")
 
