@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from sonar_realism.frames import SonarImage
+from sonar_realism.frames import SonarImage, uniform_azimuths
 from sonar_realism.sim.calibration import Calibration, GridMode
 from sonar_realism.sim.effects import Effect, apply_effects, resolve_effects
 from sonar_realism.sim.parallel import frames_in_parallel
@@ -150,6 +150,21 @@ def finish(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect],
     """Effects before the output mapping, the residual gain, the output mapping, then the recording's export.
     With a fitted texture and `speckle` in the chain, the recording's own speckle and export replace the
     catalogue's speckle: drawn on the output level, scaled to the maximum and 8-bit as the recording was."""
+    return _as_exported(calibration, _finished(calibration, clean, chain, rng, gain))
+
+
+def _as_exported(calibration: Calibration, frame: SonarImage) -> SonarImage:
+    """An export without a bearing table (images whose columns are beam indices) reads with equal beams across
+    the fan, whatever the sensor's real spacing: the simulated frame is labelled the same way, so the two reach
+    any resampling (the model grid) alike. Rendering used the physical, sin-spaced table."""
+    if calibration.grid.bearing_source == "recording":
+        return frame
+    # the reader's default: n equal beams across the span (the sensor's table spans it centre to centre)
+    return frame.replace(azimuths_rad=uniform_azimuths(frame.n_beams, frame.fov_rad))
+
+
+def _finished(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect], rng: np.random.Generator,
+              gain: bool) -> SonarImage:
     textured = calibration.texture is not None and any(e.name == "speckle" for e in chain)
     if textured:
         chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
