@@ -14,12 +14,12 @@ from sonar_realism.evaluate.detection import (
     augment,
     average_precision,
     detect,
+    detector_image,
     mask_boxes,
     read_yolo_boxes,
     train_detector,
 )
 from sonar_realism.frames import SonarImage, uniform_ranges
-from sonar_realism.models.datasets import to_model_grid
 
 
 def test_ap_is_one_for_perfect_predictions_and_zero_for_none() -> None:
@@ -82,15 +82,17 @@ def test_mask_boxes_one_box_per_object_id_on_the_grid() -> None:
         mask_boxes(np.zeros((10, 10), np.uint8), frame, (128, 128))
 
 
-def test_mask_boxes_follow_non_uniform_beams_as_the_grid_resampling_does() -> None:
-    # Beams spaced by sine (as a sensor's beamformer lays them): a plain resize of the mask would misplace boxes.
-    azimuths = np.arcsin(np.linspace(-0.9, 0.9, 64))
+def test_a_sine_spaced_frame_and_a_png_export_of_the_same_bins_look_alike_to_the_detector() -> None:
+    # The simulator's beams are equally spaced in sine (as the sensor's beamformer lays them); a real PNG export
+    # has no bearing table, so its columns are beam indices. The same bins must land on the same detector cells.
     mask = np.zeros((64, 64), np.uint8)
-    mask[20:30, 5:15] = 1
-    frame = _frame(64, azimuths).replace(intensity=mask.astype(np.float32))
-    on_grid = to_model_grid(frame, (128, 128), "frame_max") > 0.5
-    rows, cols = np.nonzero(on_grid)
-    (box,) = mask_boxes(mask, frame, (128, 128))
+    mask[20:30, 28:36] = 1  # near boresight, where sine spacing is densest
+    simulated = _frame(64, np.arcsin(np.linspace(-0.9, 0.9, 64))).replace(intensity=mask.astype(np.float32))
+    exported = _frame(64, np.linspace(-1.1, 1.1, 64)).replace(intensity=mask.astype(np.float32))
+    np.testing.assert_allclose(detector_image(simulated, (128, 128)), detector_image(exported, (128, 128)), atol=1e-6)
+    assert mask_boxes(mask, simulated, (128, 128)) == mask_boxes(mask, exported, (128, 128))
+    rows, cols = np.nonzero(detector_image(simulated, (128, 128)) > 0.5)
+    (box,) = mask_boxes(mask, simulated, (128, 128))
     assert box.top == pytest.approx(rows.min(), abs=1.5) and box.bottom == pytest.approx(rows.max() + 1, abs=1.5)
     assert box.left == pytest.approx(cols.min(), abs=1.5) and box.right == pytest.approx(cols.max() + 1, abs=1.5)
 

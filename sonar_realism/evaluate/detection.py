@@ -7,6 +7,11 @@ A small CenterNet-style detector (Zhou et al. 2019, "Objects as Points") for pol
   head (log height and width in grid cells) and a sub-cell offset head, both trained at the centre cells only;
 * detections are the local maxima of the heatmap (3 x 3), highest first.
 
+Frames go onto the detector grid in bin order (`detector_image`): rows are range bins, columns beam indices,
+whatever bearing table a frame carries. The real Oculus exports are PNGs without one, so their columns are beam
+indices; the simulator lays its beams equally in sin(bearing) as the sensor does, and resampling its frames to
+equal angles would draw a target near boresight 0.8 x as wide as the same target in a real export.
+
 Boxes are in grid cells, continuous coordinates (cell i spans [i, i + 1)). Training boxes come from the
 simulator's object masks (`mask_boxes`) or from YOLO label files (`read_yolo_boxes`); the score is VOC-style
 all-point average precision at one IoU threshold (`average_precision`).
@@ -27,6 +32,7 @@ from torch import nn
 
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
+from sonar_realism.models.datasets import to_model_grid
 
 STRIDE = 4  # grid cells per heatmap cell
 _HEATMAP_PRIOR = 0.01  # initial foreground probability of every heatmap cell (CenterNet's bias init)
@@ -128,10 +134,21 @@ class Detector:
 
 # --- boxes from the simulator's masks and from YOLO labels ----------------------------------------------------------
 
+def in_bin_order(frame: SonarImage) -> SonarImage:
+    """`frame` with equally spaced ranges and bearings over its own span: on any grid, bin i of each axis lands
+    where bin i of a frame without tables (a PNG export) lands."""
+    return frame.replace(ranges_m=np.linspace(frame.ranges_m[0], frame.ranges_m[-1], frame.n_ranges),
+                         azimuths_rad=np.linspace(frame.azimuths_rad[0], frame.azimuths_rad[-1], frame.n_beams))
+
+
+def detector_image(frame: SonarImage, grid: tuple[int, int]) -> np.ndarray:
+    """A 2-D frame as the detector sees it: in bin order, on `grid`, scaled to its maximum (float32 [0, 1])."""
+    return to_model_grid(in_bin_order(frame), grid, "frame_max")
+
+
 def mask_boxes(mask: np.ndarray, frame: SonarImage, grid: tuple[int, int]) -> list[Box]:
     """One box per object id > 0 of a simulator mask [n_ranges, n_beams] (uint8 ids on `frame`'s own bins),
-    on the model grid. Edges go through the frame's range and bearing tables, because `to_model_grid` resamples
-    onto bins uniform in metres and radians, and a sensor's beams need not be."""
+    on the grid `detector_image` puts `frame` on."""
     if mask.shape != (frame.n_ranges, frame.n_beams):
         raise ConfigError(f"mask_boxes: mask {mask.shape} does not match the frame ({frame.n_ranges}, "
                           f"{frame.n_beams})")
@@ -140,21 +157,19 @@ def mask_boxes(mask: np.ndarray, frame: SonarImage, grid: tuple[int, int]) -> li
         if object_id == 0:
             continue
         rows, cols = np.nonzero(mask == object_id)
-        top, bottom = _bin_edges_on_grid(frame.ranges_m, rows.min(), rows.max(), grid[0])
-        left, right = _bin_edges_on_grid(frame.azimuths_rad, cols.min(), cols.max(), grid[1])
+        top, bottom = _bin_edges_on_grid(mask.shape[0], rows.min(), rows.max(), grid[0])
+        left, right = _bin_edges_on_grid(mask.shape[1], cols.min(), cols.max(), grid[1])
         boxes.append(Box(top, left, bottom, right))
     return boxes
 
 
-def _bin_edges_on_grid(table: np.ndarray, first: int, last: int, n_grid: int) -> tuple[float, float]:
-    """The outer edges of bins first..last of an axis table (bin centres), in cells of a uniform n_grid grid
-    whose cell centres run from table[0] to table[-1] (as `resample_to_grid` lays them)."""
-    if table.shape[0] < 2 or table[-1] == table[0]:
-        raise ConfigError(f"mask_boxes: an axis of {table.shape[0]} bins spans no distance")
-    edges = np.concatenate([[1.5 * table[0] - 0.5 * table[1]], 0.5 * (table[1:] + table[:-1]),
-                            [1.5 * table[-1] - 0.5 * table[-2]]])
-    scale = (n_grid - 1) / float(table[-1] - table[0])
-    return float((edges[first] - table[0]) * scale + 0.5), float((edges[last + 1] - table[0]) * scale + 0.5)
+def _bin_edges_on_grid(n_bins: int, first: int, last: int, n_grid: int) -> tuple[float, float]:
+    """The outer edges of bins first..last of an axis of n_bins, in cells of an n_grid grid whose cell centres
+    run from bin 0's centre to bin n_bins - 1's (as `resample_to_grid` lays them)."""
+    if n_bins < 2:
+        raise ConfigError(f"mask_boxes: an axis of {n_bins} bin spans no distance")
+    scale = (n_grid - 1) / (n_bins - 1)
+    return (first - 0.5) * scale + 0.5, (last + 0.5) * scale + 0.5
 
 
 def read_yolo_boxes(path: str | Path, grid: tuple[int, int]) -> list[Box]:
