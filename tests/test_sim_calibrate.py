@@ -135,6 +135,21 @@ def test_calibrated_frames_are_randomised_per_frame_with_exact_masks() -> None:
     np.testing.assert_array_equal(again.intensity, frames[0].intensity)
 
 
+def test_frames_of_a_recording_without_bearing_table_carry_the_table_its_export_reads_with(tmp_path: Path) -> None:
+    sensor_table = next(simulate_calibrated(truth(), 1, seed=5))[0].azimuths_rad
+    assert np.ptp(np.diff(sensor_table)) > 1e-3  # the sensor's beams: equally spaced in sin(bearing)
+    untabled = truth()
+    untabled = dataclasses.replace(untabled, grid=dataclasses.replace(untabled.grid,
+                                                                       bearing_source="default span (see notes)"))
+    frame, mask = next(simulate_calibrated(untabled, 1, seed=5))
+    image = tmp_path / "ping.png"
+    cv2.imwrite(str(image), frame.intensity)
+    (read,) = read_frames(image)  # a PNG export: columns are beam indices, read as equal beams
+    # the same spacing as the reader's (its span is the reader's default, the frame's the sensor's)
+    np.testing.assert_allclose(frame.azimuths_rad / frame.azimuths_rad[-1], read.azimuths_rad / read.azimuths_rad[-1])
+    np.testing.assert_array_equal(frame.intensity, next(simulate_calibrated(truth(), 1, seed=5))[0].intensity)
+
+
 def test_simulate_cli_with_calibration_writes_frames_masks_and_honours_overrides(tmp_path: Path) -> None:
     calib = tmp_path / "CALIB.json"
     save_calibration(truth(present=1.0), calib)
