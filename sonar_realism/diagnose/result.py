@@ -157,13 +157,16 @@ class GainPatternFit:
 
 @dataclass(frozen=True)
 class StandIn:
-    """A selected effect dropped because a fixed gain pattern fitted in its place did at least as well."""
+    """A selected effect dropped because a fixed gain pattern fitted in its place did at least as well, or because
+    it was fitted with its own physics off (`physics_off`: those parameters at their lower bound), leaving only a
+    gain (then `gain_pattern` is the pattern in its place, whatever its gap)."""
 
     effect: str
     params: dict[str, Any]
     gain_pattern: GainPatternFit
     gap_with_effect: float
     gap_with_gain_pattern: float
+    physics_off: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

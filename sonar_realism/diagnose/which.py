@@ -291,6 +291,15 @@ def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
     return tuple(GainSpot(i, float(axis[i]), float(centred[i])) for i in [*isolated, *dict.fromkeys(extremes)])
 
 
+def physics_off(effect: Effect) -> tuple[str, ...]:
+    """The effect's own-physics parameters (`Effect.OWN_PHYSICS`) if all of them sit at their lower bound (within
+    1 % of the bound's width: the search's grid includes the bound), else (): with them off it is only a gain."""
+    names = effect.OWN_PHYSICS
+    bounds = effect.PARAM_BOUNDS
+    off = all(getattr(effect, k) <= bounds[k][0] + 0.01 * (bounds[k][1] - bounds[k][0]) for k in names)
+    return tuple(names) if names and off else ()
+
+
 @dataclass(frozen=True)
 class SelectionProblem:
     """The data a selection works on: the sim frames and real statistics of the fit split (`fit_real_halves`:
@@ -509,21 +518,25 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
         pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
-        if current < gap_gain:
+        # an effect fitted with its own physics off is a gain (a TVG curve without noise, per-ping beam gains
+        # without haze) standing in for a gain error the catalogue lacks, however well it does that
+        off = physics_off(effect)
+        if not off and current < gap_gain:
             continue
         # parsimony: a level and a ramp (two numbers, as an effect has) need only do as well; a pattern with a
         # shape (dozens of numbers) must do better beyond the noise, or a ghost that brightens the far range
         # (multipath) is lost to a range shape that mimics its mean
-        if pattern.range_shape_db is not None and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0:
+        if (not off and pattern.range_shape_db is not None
+                and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0):
             continue
         rest = refit_each([e for e in chosen if e is not effect])
         gap_rest, stats_rest = holdout(rest)
         fit = describe_pattern(pattern, problem.ranges_m, problem.bearings_deg, gap_gain,
                                gap_closed(gap_before, gap_gain) - gap_closed(gap_before, gap_rest))
-        stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain))
+        stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain, off))
         chosen, current, current_stats, changed = rest, gap_rest, stats_rest, True
         path.append(Step("gain_stand_in", effect.name, gap_rest))
         if progress:
-            progress(f"{effect.name} does no more than a gain pattern ({fit.describe()}): not blamed; held-out "
-                     f"gap {gap_rest:.4g}")
+            why = f"fitted with {', '.join(off)} off" if off else "does no more than a gain pattern"
+            progress(f"{effect.name} {why} ({fit.describe()}): not blamed; held-out gap {gap_rest:.4g}")
     return Selection(chosen, path, stopped, stand_ins, current, current_stats)
