@@ -21,7 +21,7 @@ from sonar_realism.diagnose.gap import (
 )
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
-from sonar_realism.diagnose.which import SelectionProblem, Solo, greedy_select
+from sonar_realism.diagnose.which import SelectionProblem, Solo, greedy_select, physics_off
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
@@ -156,6 +156,36 @@ def test_column_stripes_are_left_unexplained_at_their_beams():
     for spot in pattern.beams:
         if spot.index in beams:
             assert np.sign(spot.gain_db) == np.sign(gains_db[list(beams).index(spot.index)])
+
+
+def test_a_fixed_band_of_added_power_is_left_unexplained_at_its_ranges():
+    # Sim and "real" alternate along one trajectory; "real" has a band of added power at fixed rows in every frame
+    # (a reflection inside the housing, outside the catalogue). No effect may take the blame, and the residual's
+    # pattern must name the band's ranges and about its amplitude.
+    frames = sim_frames(24, seed=5)
+    rows, amplitude = (80, 85), 0.4
+    real = []
+    for frame in frames[1::2]:
+        x = frame.normalized().copy()
+        x[rows[0]:rows[1]] = np.sqrt(x[rows[0]:rows[1]] ** 2 + amplitude ** 2)
+        real.append(frame.replace(intensity=x, intensity_scale=1.0))
+    config = dataclasses.replace(FAST, effects=("beam_sidelobes", "interference", "multipath", "ring_down"))
+    result = diagnose(frames[0::2], real, config)
+    assert result.selected == ()
+    pattern = result.residual.gain_pattern
+    assert pattern is not None and pattern.band_m is not None
+    ranges = frames[0].ranges_m
+    assert pattern.band_m[0] <= ranges[rows[1] - 1] and pattern.band_m[1] >= ranges[rows[0]]
+    assert pattern.band_amplitude == pytest.approx(amplitude, rel=0.3)
+    assert "added power at" in pattern.describe()
+
+
+def test_an_effect_with_its_own_physics_off_is_only_a_gain():
+    assert physics_off(make_effect("tvg_noise", noise_amplitude=0.0)) == ("noise_amplitude",)
+    assert physics_off(make_effect("tvg_noise", noise_amplitude=0.1)) == ()
+    assert physics_off(make_effect("water_column", haze_level=0.001)) == ("haze_level",)
+    assert physics_off(make_effect("water_column", haze_level=0.04)) == ()
+    assert physics_off(make_effect("speckle")) == ()  # no reduction to a gain declared
 
 
 def test_bootstrap_frequency_splits_between_equals_and_goes_to_the_clearly_better():

@@ -77,3 +77,15 @@ def test_make_real_rejects_effects_it_cannot_make(sets):
     real = make_real(sets[0][:2], {"beam_gain_ripple": {}}, seed=0)
     assert real[0].same_geometry(sets[0][0])
     assert not np.array_equal(real[0].normalized(), sets[0][0].normalized())
+
+
+def test_multipath_alternative_stays_finite_where_the_far_range_is_empty(sets):
+    # The calibrated scene has rows with no echo at all beyond bright ones; the ghost's box smear must not turn
+    # their zero power negative (it did: NaN frames on `calibrated`).
+    frame = sets[0][0]
+    rng = np.random.default_rng(0)
+    x = np.zeros((frame.n_ranges, frame.n_beams), np.float32)
+    x[:60] = (rng.random((60, frame.n_beams)) ** 4 * 0.3).astype(np.float32)
+    out = ALTERNATIVES["multipath"](x, frame, {"reflection_coeff": 0.6, "ghost_offset_m": 2.0}, rng)
+    assert np.isfinite(out).all()
+    assert (out[60:] > 0).any()  # the ghost did land in the empty far range

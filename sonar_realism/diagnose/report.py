@@ -127,11 +127,13 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
     steps = Table(["step", "action", "effect", "held-out gap", "gap closed"],
                   [[i, step.action, step.effect, f"{step.gap:.3g}", f"{100 * (1 - step.gap / d.gap_before):.0f}%"
                     if d.gap_before > 0 else "-"] for i, step in enumerate(d.selection_path)])
-    stand_ins = [Text(f"Not blamed: **{stand_in.effect}** did no better than a fixed gain pattern "
-                      f"({stand_in.gain_pattern.describe()}): held-out gap {stand_in.gap_with_gain_pattern:.3g} "
-                      f"against {stand_in.gap_with_effect:.3g} with the effect, so its part of the gap is left in the "
+    stand_ins = [Text(f"Not blamed: **{s.effect}** "
+                      + (f"was fitted with its own physics off ({', '.join(s.physics_off)} at the bound), which "
+                         "leaves only a gain" if s.physics_off else "did no better than a fixed gain pattern")
+                      + f" ({s.gain_pattern.describe()}): held-out gap {s.gap_with_gain_pattern:.3g} with the "
+                      f"pattern against {s.gap_with_effect:.3g} with the effect, so its part of the gap is left in the "
                       "residual: a gain pattern the catalogue lacks, or the sim's intensity scale.")
-                 for stand_in in d.gain_stand_ins]
+                 for s in d.gain_stand_ins]
     pattern = res.gain_pattern
     gain_text = (f"A fixed gain pattern on top of the selected effects closes a further "
                  f"{100 * pattern.share_of_gap:.0f}% of the gap before (held-out gap {pattern.gap:.3g}); it stands "

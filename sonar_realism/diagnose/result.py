@@ -136,7 +136,8 @@ class GainPatternFit:
     """A fixed gain pattern (per range and per beam, in dB, applied before any effect) fitted on top of a set of
     effects: its level and ramp over range; `range_db` / `beam_db` the whole profiles; `beams` / `ranges` the
     places where it stands out (isolated channels and the extremes of its smooth part); `gap` the held-out gap
-    with it; `share_of_gap` how much of the gap before it closes on top of the effects."""
+    with it; `share_of_gap` how much of the gap before it closes on top of the effects; `band_m` (start and end,
+    metres) and `band_amplitude` an added-power band at fixed ranges (None: none)."""
 
     level_db: float
     ramp_db: float
@@ -146,24 +147,31 @@ class GainPatternFit:
     ranges: tuple[GainSpot, ...]
     gap: float
     share_of_gap: float
+    band_m: tuple[float, float] | None = None
+    band_amplitude: float = 0.0
 
     def describe(self) -> str:
         def spots(items: tuple[GainSpot, ...], unit: str) -> str:
             return ", ".join(f"{s.at:.3g} {unit} ({s.gain_db:+.1f} dB)" for s in items) or "none"
 
+        band = (f"; added power at {self.band_m[0]:.3g}-{self.band_m[1]:.3g} m (amplitude {self.band_amplitude:.3g})"
+                if self.band_m is not None else "")
         return (f"level {self.level_db:+.1f} dB, ramp {self.ramp_db:+.1f} dB over range; beams standing out: "
-                f"{spots(self.beams, 'deg')}; ranges standing out: {spots(self.ranges, 'm')}")
+                f"{spots(self.beams, 'deg')}; ranges standing out: {spots(self.ranges, 'm')}{band}")
 
 
 @dataclass(frozen=True)
 class StandIn:
-    """A selected effect dropped because a fixed gain pattern fitted in its place did at least as well."""
+    """A selected effect dropped because a fixed gain pattern fitted in its place did at least as well, or because
+    it was fitted with its own physics off (`physics_off`: those parameters at their lower bound), leaving only a
+    gain (then `gain_pattern` is the pattern in its place, whatever its gap)."""
 
     effect: str
     params: dict[str, Any]
     gain_pattern: GainPatternFit
     gap_with_effect: float
     gap_with_gain_pattern: float
+    physics_off: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

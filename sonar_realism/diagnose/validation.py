@@ -239,7 +239,10 @@ def alt_multipath(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng: np.r
             rows = lower + shift
             keep = rows < len(r)
             np.add.at(ghost, rows[keep], (weight * source)[keep])
-        ghost = cv2.blur(ghost.astype(np.float32), (1, 3))  # a rough surface smears the ghost over ~3 bins
+        # a rough surface smears the ghost over ~3 bins; the box filter's running sums leave tiny negatives
+        # (-1e-17) after a bright row, and on rows with no echo at all (the calibrated scene's empty far range)
+        # those made the power negative and its square root NaN
+        ghost = np.maximum(cv2.blur(ghost.astype(np.float32), (1, 3)), 0.0)
         out += p["reflection_coeff"] ** (2 * bounce) * ghost
     return np.sqrt(out).astype(np.float32)
 

@@ -44,6 +44,11 @@ GAIN_LIMIT_DB = 20.0
 SPOT_MIN_DB = 1.0
 MEASURED_WEIGHT = 0.3  # of the strongest row's or beam's weight (sqrt of mean signal): about 10% of its signal
 MAX_SPOTS = 8
+# An added-power band (a reflection inside the housing: the same delay every ping) is looked for beyond this share
+# of the range span: nearer in, a fixed band is the transducer's ring-down, which the catalogue has.
+BAND_MIN_START = 0.1
+# The band stands out from a running median of the rows' excess over this share of the rows (wider than any band).
+BAND_CONTEXT = 0.125
 
 
 @dataclass(frozen=True)
@@ -51,12 +56,16 @@ class GainPattern:
     """A fixed gain (dB) per range row and per beam, applied to the sim frames before any effect: not a sensor
     effect but the yardstick every selected effect must beat, and the form un-catalogued gain errors are reported
     in. An overall level and a linear ramp over range (searched on the statistics, as an effect's parameters are),
-    plus a shape per range and per beam (estimated from mean images: see fit_gain_pattern)."""
+    plus a shape per range and per beam (estimated from mean images: see fit_gain_pattern), and a band of added
+    power at fixed ranges (rows `band_rows`, amplitude `band_amplitude` in every beam): what is fixed in the frame
+    whatever the scene, where every catalogued effect but the ring-down moves with the scene or the ping."""
 
     level_db: float = 0.0
     ramp_db: float = 0.0
     range_shape_db: np.ndarray | None = None
     beam_shape_db: np.ndarray | None = None
+    band_rows: tuple[int, int] | None = None
+    band_amplitude: float = 0.0
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {"level_db": (-12.0, 12.0), "ramp_db": (-12.0, 12.0)}
     # A gain is one smooth dimension each: a finer search than the effects get is cheap and keeps the yardstick
     # from losing to an effect only because its grid missed a fraction of a dB.
@@ -77,6 +86,19 @@ class GainPattern:
         range_db, beam_db = self.profiles(n_ranges, n_beams)
         return (10 ** ((range_db[:, None] + beam_db[None, :]) / 20)).astype(np.float32)
 
+    @property
+    def shaped(self) -> bool:
+        """Whether it has more than a level and a ramp (dozens of numbers, or a band's place read off the data)."""
+        return self.range_shape_db is not None or self.band_rows is not None
+
+    def apply(self, image: np.ndarray, factor: np.ndarray) -> np.ndarray:
+        """`image` (amplitude) times the gain `factor` (self.factor, computed once per frame set), plus the band."""
+        out = image * factor
+        if self.band_rows is not None and self.band_amplitude > 0:
+            start, stop = self.band_rows
+            out[start:stop] = np.sqrt(out[start:stop] ** 2 + np.float32(self.band_amplitude) ** 2)
+        return out
+
 
 @dataclass(frozen=True)
 class Fit:
@@ -96,7 +118,7 @@ def corrected_images(frames: Sequence[SonarImage], effects: Sequence[Effect], se
     out = []
     for frame in frames:
         if factor is not None:
-            frame = frame.replace(intensity=frame.normalized() * factor, intensity_scale=1.0)
+            frame = frame.replace(intensity=gain.apply(frame.normalized(), factor), intensity_scale=1.0)
         if terms:
             frame = apply_scene_terms(frame, terms, rng)
         corrected = apply_effects(frame, sensor, rng) if sensor else frame
@@ -204,6 +226,7 @@ def fit_gain_pattern(problem: SelectionProblem, base: Sequence[Effect], config: 
         return gap(frame_statistics(images, config.statistics), problem.fit_target, problem.scale)
 
     line, line_gap, _ = coordinate_search(GainPattern(), GainPattern.PARAM_BOUNDS, fit_gap, search)
+    line, line_gap = _with_band(line, line_gap, fit_gap, problem, base, config, search)
     images = corrected_images(frames, base, search.seed, config.normalize, gain=line)
     sim_halves = (images[0::2].mean(axis=0), images[1::2].mean(axis=0) if len(images) > 1 else images[0])
     rows = [(r.sum(axis=1), s.sum(axis=1)) for r, s in zip(problem.fit_real_halves, sim_halves, strict=True)]
@@ -217,6 +240,39 @@ def fit_gain_pattern(problem: SelectionProblem, base: Sequence[Effect], config: 
         return shaped if fit_gap(shaped) < line_gap else line
     except FrameError:
         return line
+
+
+def _with_band(line: GainPattern, line_gap: float, fit_gap: Callable[[GainPattern], float],
+               problem: SelectionProblem, base: Sequence[Effect], config: DiagnoseConfig,
+               search: SearchConfig) -> tuple[GainPattern, float]:
+    """`line` with an added-power band where both halves of the real fit frames are brighter than the corrected
+    sim by more than their neighbourhood (a narrow excess at fixed rows; a scene's bright patch is in one half
+    only), beyond the ring-down's reach; its amplitude searched on the statistics from 0. Kept only if it lowers
+    the fit-split gap (parsimony), with its gap; else `line` and `line_gap`."""
+    images = corrected_images(problem.fit_frames, base, search.seed, config.normalize, gain=line)
+    sim_halves = (images[0::2].mean(axis=0), images[1::2].mean(axis=0) if len(images) > 1 else images[0])
+    excess = [real.mean(axis=1) - sim.mean(axis=1) for real, sim in zip(problem.fit_real_halves, sim_halves,
+                                                                         strict=True)]
+    agreed = np.maximum(_agree(*excess), 0.0)
+    n = len(agreed)
+    context = max(3, int(BAND_CONTEXT * n) | 1)
+    padded = np.pad(agreed, context // 2, mode="edge")
+    standout = agreed - np.array([np.median(padded[i:i + context]) for i in range(n)])
+    first = int(math.ceil(BAND_MIN_START * n))
+    peak = first + int(np.argmax(standout[first:]))
+    if standout[peak] <= 0.0:
+        return line, line_gap
+    above = standout >= 0.5 * standout[peak]
+    start, stop = peak, peak + 1
+    while start > first and above[start - 1]:
+        start -= 1
+    while stop < n and above[stop]:
+        stop += 1
+    # the band adds power a^2 to rows whose mean amplitude it raises by at most a: a is above the excess
+    ceiling = float(min(1.0, 3.0 * standout[peak] + 1e-3))
+    banded, band_gap, _ = coordinate_search(dataclasses.replace(line, band_rows=(start, stop)),
+                                            {"band_amplitude": (0.0, ceiling)}, fit_gap, search)
+    return (banded, band_gap) if banded.band_amplitude > 0 and band_gap < line_gap else (line, line_gap)
 
 
 def _ratio_db(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
@@ -274,10 +330,14 @@ def _isolated(deviation: np.ndarray) -> np.ndarray:
 def describe_pattern(pattern: GainPattern, ranges_m: np.ndarray, bearings_deg: np.ndarray, gap_with: float,
                      share: float) -> GainPatternFit:
     range_db, beam_db = pattern.profiles(len(ranges_m), len(bearings_deg))
+    band_m = None
+    if pattern.band_rows is not None:
+        start, stop = pattern.band_rows
+        band_m = (float(ranges_m[start]), float(ranges_m[stop - 1]))
     return GainPatternFit(level_db=pattern.level_db, ramp_db=pattern.ramp_db,
                           range_db=tuple(float(v) for v in range_db), beam_db=tuple(float(v) for v in beam_db),
                           beams=_spots(beam_db, bearings_deg), ranges=_spots(range_db - np.median(range_db), ranges_m),
-                          gap=gap_with, share_of_gap=share)
+                          gap=gap_with, share_of_gap=share, band_m=band_m, band_amplitude=pattern.band_amplitude)
 
 
 def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
@@ -289,6 +349,15 @@ def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
     extremes = [int(i) for i in (np.argmax(centred), np.argmin(centred))
                 if abs(centred[i]) >= SPOT_MIN_DB and all(abs(int(i) - j) > width for j in isolated)]
     return tuple(GainSpot(i, float(axis[i]), float(centred[i])) for i in [*isolated, *dict.fromkeys(extremes)])
+
+
+def physics_off(effect: Effect) -> tuple[str, ...]:
+    """The effect's own-physics parameters (`Effect.OWN_PHYSICS`) if all of them sit at their lower bound (within
+    1 % of the bound's width: the search's grid includes the bound), else (): with them off it is only a gain."""
+    names = effect.OWN_PHYSICS
+    bounds = effect.PARAM_BOUNDS
+    off = all(getattr(effect, k) <= bounds[k][0] + 0.01 * (bounds[k][1] - bounds[k][0]) for k in names)
+    return tuple(names) if names and off else ()
 
 
 @dataclass(frozen=True)
@@ -509,21 +578,25 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
         pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
-        if current < gap_gain:
+        # an effect fitted with its own physics off is a gain (a TVG curve without noise, per-ping beam gains
+        # without haze) standing in for a gain error the catalogue lacks, however well it does that
+        off = physics_off(effect)
+        if not off and current < gap_gain:
             continue
         # parsimony: a level and a ramp (two numbers, as an effect has) need only do as well; a pattern with a
         # shape (dozens of numbers) must do better beyond the noise, or a ghost that brightens the far range
         # (multipath) is lost to a range shape that mimics its mean
-        if pattern.range_shape_db is not None and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0:
+        if (not off and pattern.shaped
+                and lower_bound(current_stats, stats_gain, 200 + index)[1] <= 0):
             continue
         rest = refit_each([e for e in chosen if e is not effect])
         gap_rest, stats_rest = holdout(rest)
         fit = describe_pattern(pattern, problem.ranges_m, problem.bearings_deg, gap_gain,
                                gap_closed(gap_before, gap_gain) - gap_closed(gap_before, gap_rest))
-        stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain))
+        stand_ins.append(StandIn(effect.name, effect.params(), fit, current, gap_gain, off))
         chosen, current, current_stats, changed = rest, gap_rest, stats_rest, True
         path.append(Step("gain_stand_in", effect.name, gap_rest))
         if progress:
-            progress(f"{effect.name} does no more than a gain pattern ({fit.describe()}): not blamed; held-out "
-                     f"gap {gap_rest:.4g}")
+            why = f"fitted with {', '.join(off)} off" if off else "does no more than a gain pattern"
+            progress(f"{effect.name} {why} ({fit.describe()}): not blamed; held-out gap {gap_rest:.4g}")
     return Selection(chosen, path, stopped, stand_ins, current, current_stats)

@@ -65,6 +65,9 @@ class Effect(abc.ABC):
     LOG_SCALE: ClassVar[frozenset[str]] = frozenset()
     # Parameters the calibration refits to a real recording; the others keep their physical defaults.
     CALIBRATED: ClassVar[tuple[str, ...]] = ()
+    # Parameters that carry what the effect adds beyond a gain: with all of them at their lower PARAM_BOUNDS the
+    # effect is only a gain (fixed, or drawn per ping), and the diagnosis does not blame it for a gap that way.
+    OWN_PHYSICS: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, order: float | None = None, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -72,9 +75,10 @@ class Effect(abc.ABC):
             return  # a helper stage (e.g. the diagnosis' gain yardstick), not a catalogue effect
         if cls.name in _REGISTRY:
             raise ConfigError(f"effect {cls.name!r} registered twice ({_REGISTRY[cls.name].__name__}, {cls.__name__})")
-        unknown = (set(cls.CALIBRATED) | set(cls.LOG_SCALE)) - set(cls.PARAM_BOUNDS)
+        unknown = (set(cls.CALIBRATED) | set(cls.LOG_SCALE) | set(cls.OWN_PHYSICS)) - set(cls.PARAM_BOUNDS)
         if unknown:
-            raise ConfigError(f"effect {cls.name}: calibrated/log parameters without bounds: {sorted(unknown)}")
+            raise ConfigError(f"effect {cls.name}: calibrated/log/own-physics parameters without bounds: "
+                              f"{sorted(unknown)}")
         cls.ORDER = float(order)
         _REGISTRY[cls.name] = cls
 
@@ -370,6 +374,7 @@ class TvgNoise(Effect, order=70):
         "noise_amplitude": (0.0, 10.0), "tvg_log_coeff_db": (0.0, 80.0), "absorption_db_per_m": (0.0, 10.0),
         "residual_ramp_db": (-60.0, 60.0)}
     CALIBRATED: ClassVar[tuple[str, ...]] = ("noise_amplitude", "tvg_log_coeff_db", "residual_ramp_db")
+    OWN_PHYSICS: ClassVar[tuple[str, ...]] = ("noise_amplitude",)  # without noise: a gain curve over range
 
     # Beamforming correlates the noise across about one beam (sigma in beams).
     NOISE_GRAIN_BEAMS: ClassVar[float] = 0.7
@@ -643,6 +648,7 @@ class WaterColumn(Effect, order=75):
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "haze_level": (0.0, 10.0), "stripe_contrast": (0.0, 3.0), "stripe_width_beams": (0.0, 100.0)}
     CALIBRATED: ClassVar[tuple[str, ...]] = ("haze_level", "stripe_contrast")
+    OWN_PHYSICS: ClassVar[tuple[str, ...]] = ("haze_level",)  # without haze: random per-beam gains only
 
     def beam_gain(self, n_beams: int, rng: np.random.Generator) -> np.ndarray:
         """Per-beam amplitude gain of one ping (log-normal, unit median)."""
