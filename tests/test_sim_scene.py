@@ -106,32 +106,6 @@ def test_object_returns_occlude_and_cast_a_shadow() -> None:
     assert free[behind, centre].mean() > 0.05  # ... and so is the same place without the box
 
 
-def ridge_scene(height_m: float) -> Scene:
-    """A flat seabed with a ridge across the look direction at x = 6 m (0.4 m wide)."""
-    heights = np.zeros((200, 200), np.float32)
-    xs = -20.0 + 0.2 * np.arange(200)
-    heights[:, np.abs(xs - 6.0) <= 0.2] = height_m
-    seabed = Seabed(-20.0, -20.0, 0.2, heights, np.ones_like(heights))
-    return Scene("ridge", 0, seabed, (), (), lambda n: [], "none")
-
-
-def test_seabed_relief_shadows_the_seabed_behind_a_crest() -> None:
-    flat, _ = render(flat_scene(), LOOK_EAST, SMALL)
-    ridged, _ = render(ridge_scene(0.4), LOOK_EAST, SMALL)
-    centre = SMALL.n_beams // 2
-    ranges = SMALL.ranges_m
-    # the crest's back edge (6.2 m out, 0.4 m up) seen from 2.5 m up hides the flat ground out to
-    # 6.2 * 2.5 / 2.1 = 7.4 m, i.e. slant ranges 6.6 to 7.8 m
-    behind = (ranges > 6.8) & (ranges < 7.5)
-    assert flat[behind, centre].min() > 0.05
-    assert not ridged[behind, centre].any()
-    beyond = ranges > 8.0
-    np.testing.assert_allclose(ridged[beyond, centre], flat[beyond, centre], rtol=1e-4)
-    # a crest too low to hide anything at these angles shadows nothing
-    low, _ = render(ridge_scene(0.001), LOOK_EAST, SMALL)
-    assert low[(ranges > 6.5) & (ranges < 7.8), centre].min() > 0.05
-
-
 def test_unclipped_render_keeps_the_bright_returns_the_clipped_one_saturates() -> None:
     plate = Primitive("box", (6.0, 0.0, 0.5), rotation(), (0.5, 0.6, 0.5), "metal", 1)
     clipped, _ = render(flat_scene((plate,)), LOOK_EAST, SMALL)

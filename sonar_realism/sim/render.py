@@ -10,8 +10,7 @@ the image), elevation phi positive up. The boresight is tilted down by `pose.til
 - Objects: rays on a (beam, elevation) grid across the vertical aperture hit the nearest solid (occlusion);
   each hit adds its backscatter to the (range, beam) bin it falls in (elevation ambiguity: returns from all
   elevations at one range pile up; vertical faces become bright arcs).
-- Shadows: a seabed pixel is dark when the object ray at its (beam, elevation) stops nearer than it, or when
-  nearer seabed along its beam rises above its line of sight (relief shadow behind rocks and crests).
+- Shadows: a seabed pixel is dark when the object ray at its (beam, elevation) stops nearer than it.
 - Backscatter: per material (scene.MATERIALS), a power law of cos(incidence) plus a specular lobe; a
   bin sums the power of everything in it, weighted by the fraction of the bin each surface element fills.
 
@@ -36,9 +35,6 @@ POWER_SCALE = 0.35 ** 2 / _REFERENCE_POWER
 SEABED_ITERATIONS = 1
 # The seabed geometry factor (area of a range bin) grows without bound at normal incidence; cap it.
 _MAX_SEABED_FILL = 4.0
-# Elevation slack (sine) of the relief-shadow test: round-off of the one-iteration seabed solve, far below the
-# elevation a centimetre of relief subtends.
-_RELIEF_SHADOW_SLACK = 1e-4
 # Longest range extent (bins) one object ray's surface element is spread over (grazing faces).
 _MAX_SPLAT_BINS = 32.0
 
@@ -203,9 +199,6 @@ def _seabed_band(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: n
     fill = np.minimum(fill * np.float32(1.0 / _reference_fill()), np.float32(_MAX_SEABED_FILL))
     power = backscatter * albedo * fill
 
-    # relief shadow: along a beam a visible seabed point is seen at a higher elevation than every nearer one;
-    # a point seen lower than some nearer point lies behind that point's crest
-    visible &= q >= np.maximum.accumulate(q, axis=0) - np.float32(_RELIEF_SHADOW_SLACK)
     _shade(visible, sin_p, r, hit_t, ranges, half_aperture, sensor)
     power *= visible
     return power
