@@ -19,7 +19,7 @@ import numpy as np
 
 from sonar_realism.frames import SonarImage, uniform_azimuths
 from sonar_realism.sim.calibration import Calibration, GridMode
-from sonar_realism.sim.effects import Effect, apply_effects, resolve_effects
+from sonar_realism.sim.effects import Effect, GammaQuantization, apply_effects, resolve_effects
 from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
 from sonar_realism.sim.sensor import SensorConfig
@@ -169,7 +169,7 @@ def _finished(calibration: Calibration, clean: SonarImage, chain: Sequence[Effec
     if textured:
         chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
     before = [e for e in chain if e.name != "gamma_quantization"]
-    output = [e for e in chain if e.name == "gamma_quantization"]
+    output = [e for e in chain if isinstance(e, GammaQuantization)]
     frame = apply_effects(clean, before, rng) if before else clean
     if gain:
         frame = frame.replace(intensity=frame.intensity * residual_gain(calibration, frame))
