@@ -106,7 +106,6 @@ class MethodResult:
         return float(np.std(self.ap_per_seed, ddof=1)) if len(self.ap_per_seed) > 1 else 0.0
 
 
-
 def real_labelled(recording: str, grid: tuple[int, int], data: str | None) -> LabelledFrames:
     files = oculus_recording_files(recording, data)
     if not files:

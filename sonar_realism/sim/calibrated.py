@@ -168,7 +168,7 @@ def _finished(calibration: Calibration, clean: SonarImage, chain: Sequence[Effec
     textured = calibration.texture is not None and any(e.name == "speckle" for e in chain)
     if textured:
         chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
-    before = [e for e in chain if e.name != "gamma_quantization"]
+    before = [e for e in chain if not isinstance(e, GammaQuantization)]
     output = [e for e in chain if isinstance(e, GammaQuantization)]
     frame = apply_effects(clean, before, rng) if before else clean
     if gain:
