@@ -60,6 +60,7 @@ from sonar_realism.sim.calibration import (
 )
 from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, Effect, apply_effects, calibrated_parameters
 from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, per_frame_rescaled, resample_profile
+from sonar_realism.sim.measure import SeabedStats
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
 from sonar_realism.sim.texture import fit_texture
@@ -216,32 +217,45 @@ def _match_onsets(calibration: Calibration, real: np.ndarray, sim: np.ndarray, s
     return dataclasses.replace(calibration, mounting=mounting)
 
 
-def _seabed_summary(images: Sequence[np.ndarray]) -> tuple[float, float, float]:
-    stats = [s for s in (measure.seabed_stats(i) for i in images) if s is not None]
-    if not stats:
-        return math.nan, math.nan, math.nan
-    return (float(np.median([s.contrast for s in stats])), float(np.median([s.scale_rows for s in stats])),
-            float(np.median([s.dark_fraction for s in stats])))
+def _seabed_summary(images: Sequence[np.ndarray]) -> SeabedStats:
+    """The median over frames of each patchiness statistic (NaN where no frame shows a seabed)."""
+    stats = np.array([dataclasses.astuple(s) for s in (measure.seabed_stats(i) for i in images) if s is not None])
+    if not len(stats):
+        return SeabedStats(math.nan, math.nan, math.nan, math.nan)
+    return SeabedStats(*(float(v) for v in np.median(stats, axis=0)))
 
 
-def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: SeabedLook,
-                  real: tuple[float, float, float], n: int, seed: int) -> SeabedLook:
-    """The seabed look whose simulated patchiness (contrast, correlation length, dark share) is the real one's,
-    by three multiplicative updates under `chain`."""
-    real_contrast, real_scale_rows, real_dark = real
+def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: SeabedLook, real: SeabedStats, n: int,
+                  seed: int) -> SeabedLook:
+    """The seabed look whose simulated patchiness (contrast, correlation lengths, dark share) is the real one's,
+    by three multiplicative updates under `chain`. The width is matched only where the recording's patches are
+    well wider than the measure's local box (below that the box sets the measure and the update would run away),
+    and within a factor 2 of the recording's own measure."""
+    mode = calibration.grid.modes[0]
+    measured_deg = real.width_beams * mode.fov_deg / max(mode.n_beams - 1, 1)
+    width_bounds = ((max(0.2, measured_deg / 2), min(60.0, measured_deg * 2)) if resolved_width(real)
+                    else (look.patch_width_deg, look.patch_width_deg))
     for _ in range(3):
-        contrast, scale_rows, dark = _seabed_summary(_sim_images(calibration, chain, n, seed, gain=False, look=look))
-        if not math.isfinite(contrast):
+        sim = _seabed_summary(_sim_images(calibration, chain, n, seed, gain=False, look=look))
+        if not math.isfinite(sim.contrast):
             break
-        look = SeabedLook(float(np.clip(look.patch_contrast * real_contrast / max(contrast, 1e-3), 0.0, 2.5)),
-                          float(np.clip(look.patch_scale_m * real_scale_rows / max(scale_rows, 0.5), 0.05, 20.0)),
-                          float(np.clip(look.dark_fraction + (real_dark - dark), 0.0, 0.8)), look.roughness_m)
+        look = SeabedLook(float(np.clip(look.patch_contrast * real.contrast / max(sim.contrast, 1e-3), 0.0, 2.5)),
+                          float(np.clip(look.patch_scale_m * real.scale_rows / max(sim.scale_rows, 0.5), 0.05, 20.0)),
+                          float(np.clip(look.patch_width_deg * real.width_beams / max(sim.width_beams, 0.5),
+                                        *width_bounds)),
+                          float(np.clip(look.dark_fraction + (real.dark_fraction - sim.dark_fraction), 0.0, 0.8)),
+                          look.roughness_m)
     return look
 
 
+def resolved_width(stats: SeabedStats) -> bool:
+    """Whether the patches are wide enough across beams for the measure to see their width, not its own box."""
+    return stats.width_beams >= 2 * measure.LOCAL_BOX
+
+
 def _fixed_seabed(look: SeabedLook) -> SeabedTerms:
-    return SeabedTerms(_fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.dark_fraction),
-                       _fixed(look.roughness_m))
+    return SeabedTerms(_fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.patch_width_deg),
+                       _fixed(look.dark_fraction), _fixed(look.roughness_m))
 
 
 def _sim_highlight(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
@@ -380,7 +394,10 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     real_onsets = _frame_onsets(images, [_bin(f) for f in frames])
 
     # seabed patchiness and targets, measured on the recording
-    real_contrast, real_scale_rows, real_dark = _seabed_summary(images)
+    real_seabed = _seabed_summary(images)
+    if math.isfinite(real_seabed.width_beams) and not resolved_width(real_seabed):
+        notes.append(f"seabed patches {real_seabed.width_beams:.0f} beams wide, near the measure's "
+                     f"{measure.LOCAL_BOX}-beam box: their width is the recording's measure, not matched")
     shadows = [measure.target_shadow(i) for i in images]
     present = np.array([s is not None for s in shadows], dtype=float)
     sizes, where, highlights = [], [], []
@@ -398,8 +415,11 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                           _estimate(np.array(where), np.median, rng, b) if where else _fixed(0.5),
                           _estimate(np.array(highlights), np.median, rng, b) if highlights else _fixed(2.0), 1.0)
     mean_bin = float(np.median([_bin(f) for f in frames]))
-    look = SeabedLook(patch_contrast=min(2.5, real_contrast / 0.6), patch_scale_m=real_scale_rows * mean_bin,
-                      dark_fraction=min(0.8, real_dark), roughness_m=0.01)
+    beam_deg = grid.modes[0].fov_deg / max(grid.modes[0].n_beams - 1, 1)
+    look = SeabedLook(patch_contrast=min(2.5, real_seabed.contrast / 0.6),
+                      patch_scale_m=real_seabed.scale_rows * mean_bin,
+                      patch_width_deg=float(np.clip(real_seabed.width_beams * beam_deg, 0.2, 60.0)),
+                      dark_fraction=min(0.8, real_seabed.dark_fraction), roughness_m=0.01)
     seabed = _fixed_seabed(look)
     defaults = [EFFECTS[name]() for name in PIPELINE_ORDER]
     calibration = Calibration(
@@ -418,10 +438,10 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     # seabed look matched under the current effects, then the effects refitted on top; twice, as they interact
     chain = defaults
     for rounds, step in ((config.rounds, 0.25), (1, 0.06)):
-        look = _match_seabed(calibration, chain, look, (real_contrast, real_scale_rows, real_dark), n, seed)
+        look = _match_seabed(calibration, chain, look, real_seabed, n, seed)
         calibration = dataclasses.replace(calibration, seabed=_fixed_seabed(look))
         say(f"seabed: contrast {look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, "
-            f"dark {look.dark_fraction:.2f}")
+            f"width {look.patch_width_deg:.1f} deg, dark {look.dark_fraction:.2f}")
         clean = [calibrated_view(calibration, seed, i)[0] for i in range(n)]
         chain, _ = fit(clean, target, seed, rounds, log=log, start=chain, step=step)
         calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
@@ -431,10 +451,11 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         calibration = dataclasses.replace(calibration, texture=fit_texture(images, config.seed))
         # the texture's grain differs from the catalogue speckle's (long along range at dark levels), which
         # changes the measured patchiness: the seabed look matched again under it
-        look = _match_seabed(calibration, chain, look, (real_contrast, real_scale_rows, real_dark), n, seed)
+        look = _match_seabed(calibration, chain, look, real_seabed, n, seed)
         calibration = dataclasses.replace(calibration, seabed=_fixed_seabed(look))
         say(f"texture: the recording's speckle fitted (sim/texture.py); seabed under it: contrast "
-            f"{look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, dark {look.dark_fraction:.2f}")
+            f"{look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, width {look.patch_width_deg:.1f} deg, "
+            f"dark {look.dark_fraction:.2f}")
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
     for _ in range(2):
         sim_highlight = _sim_highlight(calibration, chain, n, seed)
@@ -463,7 +484,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
 
     # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
     fitted = _effect_intervals(clean, chain, images, config, rng, log)
-    seabed_intervals = _seabed_intervals(images, look, real_contrast, real_scale_rows, real_dark, rng, b)
+    seabed_intervals = _seabed_intervals(images, look, real_seabed, rng, b)
     calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
 
     # before / after
@@ -505,12 +526,11 @@ def _effect_intervals(clean: Sequence[SonarImage], chain: list[Effect], images: 
     return tuple(out)
 
 
-def _seabed_intervals(images: list[np.ndarray], look: SeabedLook, contrast: float, scale_rows: float, dark: float,
-                      rng: np.random.Generator, resamples: int) -> SeabedTerms:
+def _seabed_intervals(images: list[np.ndarray], look: SeabedLook, real: SeabedStats, rng: np.random.Generator,
+                      resamples: int) -> SeabedTerms:
     """The matched seabed terms scale with the recording's statistics: their intervals are the statistics'
     bootstrap intervals carried through that proportion."""
-    stats = np.array([(s.contrast, s.scale_rows, s.dark_fraction) for s in
-                      (measure.seabed_stats(i) for i in images) if s is not None])
+    stats = np.array([dataclasses.astuple(s) for s in (measure.seabed_stats(i) for i in images) if s is not None])
 
     def carried(column: int, value: float, reference: float, additive: bool = False) -> Estimate:
         e = _estimate(stats[:, column], np.median, rng, resamples)
@@ -519,8 +539,10 @@ def _seabed_intervals(images: list[np.ndarray], look: SeabedLook, contrast: floa
         ratio = value / max(reference, 1e-9)
         return Estimate(value, e.low * ratio, e.high * ratio)
 
-    return SeabedTerms(carried(0, look.patch_contrast, contrast), carried(1, look.patch_scale_m, scale_rows),
-                       carried(2, look.dark_fraction, dark, additive=True), _fixed(look.roughness_m))
+    return SeabedTerms(carried(0, look.patch_contrast, real.contrast),
+                       carried(1, look.patch_scale_m, real.scale_rows),
+                       carried(2, look.patch_width_deg, real.width_beams),
+                       carried(3, look.dark_fraction, real.dark_fraction, additive=True), _fixed(look.roughness_m))
 
 
 # ----------------------------------------------------------------------------------------------- CLI

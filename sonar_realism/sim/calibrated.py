@@ -37,6 +37,7 @@ BEARING_SHARE = 0.55
 DARK_PATCH_LEVEL = 0.15
 ELEVATION_RAYS = 64
 SEABED_AMPLITUDE = 0.35
+ANGLE_STEP = 2 * math.pi / 2048  # of the seabed patches' angular grid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,13 +46,15 @@ class SeabedLook:
 
     patch_contrast: float
     patch_scale_m: float
+    patch_width_deg: float
     dark_fraction: float
     roughness_m: float
 
 
 def seabed_look(calibration: Calibration) -> SeabedLook:
     s = calibration.seabed
-    return SeabedLook(s.patch_contrast.value, s.patch_scale_m.value, s.dark_fraction.value, s.roughness_m.value)
+    return SeabedLook(s.patch_contrast.value, s.patch_scale_m.value, s.patch_width_deg.value, s.dark_fraction.value,
+                      s.roughness_m.value)
 
 
 def sensor_for(mode: GridMode, vertical_fov_deg: float) -> SensorConfig:
@@ -63,22 +66,47 @@ def sensor_for(mode: GridMode, vertical_fov_deg: float) -> SensorConfig:
 
 
 def make_patch(rng: np.random.Generator, extent_m: float, look: SeabedLook) -> Seabed:
-    """A square seabed centred on the origin: roughness, gentle undulation, and a log-normal albedo with dark
-    patches; `look` sets the contrast, the correlation length and the dark share of the mean level."""
+    """A square seabed centred on the sensor (the origin): roughness, gentle undulation, and a log-normal albedo
+    with dark patches; `look` sets the contrast, the correlation lengths along range and across the fan, and the
+    dark share of the mean level."""
     spacing = max(0.04, extent_m / 640)
     n = int(math.ceil(extent_m / spacing)) + 1
     heights = (look.roughness_m * _smooth_noise(rng, (n, n), 0.15 / spacing)
                + 0.05 * _smooth_noise(rng, (n, n), 3.0 / spacing))
-    scale_cells = max(look.patch_scale_m / spacing, 0.5)
-    albedo = np.exp(look.patch_contrast * _smooth_noise(rng, (n, n), scale_cells))
+    albedo = np.exp(look.patch_contrast * _polar_noise(rng, n, spacing, look))
     if look.dark_fraction > 0:
-        patches = _smooth_noise(rng, (n, n), scale_cells)
+        patches = _polar_noise(rng, n, spacing, look)
         threshold = np.quantile(patches[:: 4, :: 4], 1 - look.dark_fraction)
         dark = 1.0 / (1.0 + np.exp(-(patches - threshold) * 6.0))
         albedo = albedo * (1 - (1 - DARK_PATCH_LEVEL) * dark)
     # unit median: the patches vary about sand's level instead of lifting most of the seabed into the clip at 1
     albedo = albedo / float(np.median(albedo[:: 4, :: 4]))
     return Seabed(-extent_m / 2, -extent_m / 2, spacing, heights.astype(np.float32), albedo.astype(np.float32))
+
+
+def _polar_noise(rng: np.random.Generator, n: int, spacing_m: float, look: SeabedLook) -> np.ndarray:
+    """Zero-mean, unit-rms Gaussian field on the n x n patch centred on the sensor, correlated over
+    `look.patch_scale_m` along range and `look.patch_width_deg` across the fan (a fixed angle at every range).
+
+    Drawn on a coarse (range, world angle) grid wrapped in angle and sampled at every cell's polar coordinates.
+    """
+    r_max = n * spacing_m * 0.75  # past the square's corner
+    sigma_r = max(look.patch_scale_m / spacing_m, 0.5)  # in range cells
+    sigma_angle = max(math.radians(look.patch_width_deg) / ANGLE_STEP, 0.5)  # in angle cells
+    coarse = max(1.0, min(sigma_r, sigma_angle) / 2.0)  # same field statistics, a fraction of the cost
+    n_angles = int(math.ceil(2 * math.pi / ANGLE_STEP / coarse))
+    white = rng.standard_normal((int(math.ceil(r_max / spacing_m / coarse)) + 2, n_angles)).astype(np.float32)
+    pad = int(math.ceil(4 * sigma_angle / coarse)) + 1
+    wrapped = np.pad(white, ((0, 0), (pad, pad)), mode="wrap")
+    field = cv2.GaussianBlur(wrapped, (0, 0), sigmaX=sigma_angle / coarse, sigmaY=sigma_r / coarse,
+                             borderType=cv2.BORDER_REFLECT_101)[:, pad:-pad]
+    cells = (np.arange(n, dtype=np.float32) - (n - 1) / 2) * spacing_m
+    x, y = np.meshgrid(cells, cells, indexing="ij")
+    rows = np.hypot(x, y) / (spacing_m * coarse)
+    columns = (np.arctan2(y, x) + math.pi) * (n_angles / (2 * math.pi))
+    out = cv2.remap(np.ascontiguousarray(field), columns.astype(np.float32), rows.astype(np.float32),
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    return (out - out.mean()) / max(float(out.std()), 1e-12)
 
 
 def _place_target(maker: _ObjectMaker, rng: np.random.Generator, calibration: Calibration, pose: Pose,

@@ -18,7 +18,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.sim.effects import EFFECTS, Effect, make_effect
 from sonar_realism.sim.texture import SensorTexture
 
-CALIBRATION_VERSION = 2  # 2: the texture's grain kernel per level group
+CALIBRATION_VERSION = 3  # 2: the texture's grain kernel per level group; 3: the patches' width across the fan
 
 
 @dataclass(frozen=True)
@@ -92,11 +92,13 @@ class Mounting:
 
 @dataclass(frozen=True)
 class SeabedTerms:
-    """Seabed backscatter: patchiness of the mean level (log-amplitude contrast, correlation length, the share
-    of dark patches) and small-scale roughness."""
+    """Seabed backscatter: patchiness of the mean level (log-amplitude contrast, correlation lengths along range
+    and across the fan, the share of dark patches) and small-scale roughness."""
 
     patch_contrast: Estimate  # rms of log local mean amplitude
-    patch_scale_m: Estimate  # correlation length of the mean level
+    patch_scale_m: Estimate  # correlation length of the mean level along range
+    # ... and across the fan, as an angle: recorded seabeds are patchy in arcs about the sensor, not in discs
+    patch_width_deg: Estimate
     dark_fraction: Estimate  # share of the seabed in dark patches
     roughness_m: Estimate
 
@@ -105,6 +107,8 @@ class SeabedTerms:
             raise ConfigError(f"seabed.patch_contrast: {self.patch_contrast.value} outside 0..3")
         if not 0.02 <= self.patch_scale_m.value <= 50.0:
             raise ConfigError(f"seabed.patch_scale_m: {self.patch_scale_m.value} outside 0.02..50 m")
+        if not 0.1 <= self.patch_width_deg.value <= 90.0:
+            raise ConfigError(f"seabed.patch_width_deg: {self.patch_width_deg.value} outside 0.1..90 deg")
         if not 0.0 <= self.dark_fraction.value <= 0.9:
             raise ConfigError(f"seabed.dark_fraction: {self.dark_fraction.value} outside 0..0.9")
 

@@ -6,7 +6,8 @@ All images are float [n_ranges, n_beams] scaled so the frame maximum is 1 (the r
 - seabed onset per beam group: the first range after the water column where the smoothed brightness reaches
   half the seabed level; its curvature across the fan gives the tilt, its range the height;
 - seabed patchiness: the local mean (a box a few cells wide) below the onset, as log level about each row's
-  median: its spread (interquartile, as an rms), its correlation length along range, the share below half;
+  median: its spread (interquartile, as an rms), its correlation lengths along range and across beams, the share
+  below half;
 - a target: a long run of beams darker than the seabed around it behind a bright return (its shadow).
 """
 
@@ -118,6 +119,7 @@ def seabed_rows(image: np.ndarray) -> int:
 class SeabedStats:
     contrast: float  # rms of log local mean below the onset
     scale_rows: float  # correlation length of the log local mean along range, in rows
+    width_beams: float  # its correlation length across beams, in beams
     dark_fraction: float  # share of local means below half their median
 
 
@@ -135,13 +137,18 @@ def seabed_stats(image: np.ndarray) -> SeabedStats | None:
     centred = log_mean - np.median(log_mean, axis=1, keepdims=True)
     low, high = np.percentile(centred, [25, 75])
     contrast = float(high - low) / 1.349  # rms of a normal with that spread: shadows and holes do not inflate it
-    variance = float((centred ** 2).mean())
-    scale = float(centred.shape[0] // 2)
-    for lag in range(1, centred.shape[0] // 2):
-        if float((centred[lag:] * centred[:-lag]).mean()) / max(variance, 1e-12) < math.exp(-1):
-            scale = float(lag)
-            break
-    return SeabedStats(contrast, scale, float((centred < math.log(0.5)).mean()))
+    return SeabedStats(contrast, _correlation_length(centred, axis=0), _correlation_length(centred, axis=1),
+                       float((centred < math.log(0.5)).mean()))
+
+
+def _correlation_length(centred: np.ndarray, axis: int) -> float:
+    """The first lag along `axis` where the autocorrelation falls below 1/e (half the extent when it never does)."""
+    variance = max(float((centred ** 2).mean()), 1e-12)
+    moved = np.moveaxis(centred, axis, 0)
+    for lag in range(1, moved.shape[0] // 2):
+        if float((moved[lag:] * moved[:-lag]).mean()) / variance < math.exp(-1):
+            return float(lag)
+    return float(moved.shape[0] // 2)
 
 
 @dataclass(frozen=True)
