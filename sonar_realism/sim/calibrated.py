@@ -10,6 +10,7 @@ effect chain, the residual gain, and the recording's export (per-frame max to 25
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -100,13 +101,21 @@ def _polar_noise(rng: np.random.Generator, n: int, spacing_m: float, look: Seabe
     wrapped = np.pad(white, ((0, 0), (pad, pad)), mode="wrap")
     field = cv2.GaussianBlur(wrapped, (0, 0), sigmaX=sigma_angle / coarse, sigmaY=sigma_r / coarse,
                              borderType=cv2.BORDER_REFLECT_101)[:, pad:-pad]
-    cells = (np.arange(n, dtype=np.float32) - (n - 1) / 2) * spacing_m
-    x, y = np.meshgrid(cells, cells, indexing="ij")
-    rows = np.hypot(x, y) / (spacing_m * coarse)
-    columns = (np.arctan2(y, x) + math.pi) * (n_angles / (2 * math.pi))
-    out = cv2.remap(np.ascontiguousarray(field), columns.astype(np.float32), rows.astype(np.float32),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    columns, rows = _polar_cells(n, coarse, n_angles)
+    out = cv2.remap(np.ascontiguousarray(field), columns, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
     return (out - out.mean()) / max(float(out.std()), 1e-12)
+
+
+@functools.lru_cache(maxsize=16)
+def _polar_cells(n: int, coarse: float, n_angles: int) -> tuple[np.ndarray, np.ndarray]:
+    """(angle, range) coordinates on the coarse polar grid of every cell of the n x n patch (one per grid mode)."""
+    cells = np.arange(n, dtype=np.float32) - (n - 1) / 2
+    x, y = np.meshgrid(cells, cells, indexing="ij")
+    columns = ((np.arctan2(y, x) + math.pi) * (n_angles / (2 * math.pi))).astype(np.float32)
+    rows = (np.hypot(x, y) / coarse).astype(np.float32)
+    for table in (columns, rows):
+        table.flags.writeable = False
+    return columns, rows
 
 
 def _place_target(maker: _ObjectMaker, rng: np.random.Generator, calibration: Calibration, pose: Pose,
