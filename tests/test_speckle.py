@@ -58,18 +58,15 @@ def test_samples_are_max_scaled_8_bit_and_differ_between_draws():
     np.testing.assert_array_equal(samples, again)
 
 
-def test_saturating_samples_clip_at_full_scale_instead_of_scaling_everything_down():
+def test_samples_clip_at_full_scale_instead_of_scaling_everything_down():
     field = fitted_on(correlated_speckle((64, 64), 4, seed=2, smear_beams=1), [np.ones((64, 64))] * 4)
     mean = np.full((2, 64, 64), 0.3, np.float32)
     mean[:, :8] = 4.0  # a return far above full scale
-    generator = lambda: torch.Generator().manual_seed(0)  # noqa: E731
-    saturated = field.sample(mean, generator(), saturate=True)
-    scaled = field.sample(mean, generator())
-    # saturating: the bright rows sit at full scale and the rest keeps its level (speckle about 0.3)
-    assert (saturated[:, :8] == 1.0).mean() > 0.9
-    assert np.median(saturated[:, 8:]) == pytest.approx(0.3, rel=0.25)
-    # the plain export scales by the brightest speckle peak instead: the rest goes dark
-    assert np.median(scaled[:, 8:]) < 0.5 * np.median(saturated[:, 8:])
+    samples = field.sample(mean, torch.Generator().manual_seed(0))
+    # the bright rows sit at full scale and the rest keeps its level (speckle about 0.3); scaling by the
+    # brightest speckle peak (about 4 x the ratio's upper tail) would have put the rest below 0.08
+    assert (samples[:, :8] == 1.0).mean() > 0.9
+    assert np.median(samples[:, 8:]) == pytest.approx(0.3, rel=0.25)
 
 
 def test_unfitted_field_and_bad_fit_inputs_are_refused():

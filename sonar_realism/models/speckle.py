@@ -122,11 +122,13 @@ class SpeckleField(nn.Module):
         return torch.take(self._dense_quantiles, bins * DENSE_STEPS + step.long())
 
     def sample(self, mean: np.ndarray, generator: torch.Generator | None,
-               row_gain: np.ndarray | None = None, saturate: bool = False) -> np.ndarray:
+               row_gain: np.ndarray | None = None) -> np.ndarray:
         """Speckled, max-scaled, 8-bit-quantised samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W];
         `row_gain` [H] multiplies each range row before the export's scaling (a sensor's gain per range sample).
-        With `saturate` the mean is in the sensor's full-scale units and the speckled value clips at full scale
-        (1.0) before the export's scaling, as a sensor's 8-bit output does."""
+        The mean is in full-scale units (1.0 is the export's 255, which no frame the statistics were fitted on
+        exceeds): the speckled value clips there, as a sensor's 8-bit output does, before the export scales the
+        frame to its maximum. Scaling by an unclipped speckle peak instead would darken the whole frame by it
+        (the translator's output median fell 30-45 % below its decoded level that way until 2026-11-23)."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's speckle statistics were never fitted")
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))
@@ -134,8 +136,7 @@ class SpeckleField(nn.Module):
         image = mean_t * self.ratios(bins, self.correlated_normal(bins, generator))
         if row_gain is not None:
             image *= torch.from_numpy(np.asarray(row_gain, np.float32))[None, :, None]
-        if saturate:
-            image.clamp_(max=1.0)
+        image.clamp_(max=1.0)
         peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
         image = torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS
         return image.numpy()

@@ -153,5 +153,5 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     if texture.row_gain_log_quantiles:
         table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
         row_gain = np.exp(np.interp(rng.random(level.shape[0]), np.linspace(0.0, 1.0, table.size), table))
-    sample = _speckle_field(texture).sample(level[None], generator, row_gain, saturate=True)[0]
+    sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
     return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
