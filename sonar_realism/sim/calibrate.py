@@ -217,12 +217,23 @@ def _match_onsets(calibration: Calibration, real: np.ndarray, sim: np.ndarray, s
     return dataclasses.replace(calibration, mounting=mounting)
 
 
-def _seabed_summary(images: Sequence[np.ndarray]) -> SeabedStats:
+def _seabed_table(images: Sequence[np.ndarray]) -> np.ndarray:
+    """Each frame's patchiness statistics (`SeabedStats` fields as columns; frames without a seabed left out)."""
+    rows = [dataclasses.astuple(s) for s in (measure.seabed_stats(i) for i in images) if s is not None]
+    return np.array(rows, dtype=np.float64).reshape(len(rows), len(dataclasses.fields(SeabedStats)))
+
+
+def _seabed_summary(table: np.ndarray) -> SeabedStats:
     """The median over frames of each patchiness statistic (NaN where no frame shows a seabed)."""
-    stats = np.array([dataclasses.astuple(s) for s in (measure.seabed_stats(i) for i in images) if s is not None])
-    if not len(stats):
+    if not len(table):
         return SeabedStats(math.nan, math.nan, math.nan, math.nan)
-    return SeabedStats(*(float(v) for v in np.median(stats, axis=0)))
+    return SeabedStats(*(float(v) for v in np.median(table, axis=0)))
+
+
+def _width_deg(stats: SeabedStats, grid: Grid) -> float:
+    """The measured patch width across beams as an angle, on the grid's most common mode."""
+    mode = grid.modes[0]
+    return stats.width_beams * mode.fov_deg / max(mode.n_beams - 1, 1)
 
 
 def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: SeabedLook, real: SeabedStats, n: int,
@@ -231,12 +242,11 @@ def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: Seabe
     by three multiplicative updates under `chain`. The width is matched only where the recording's patches are
     well wider than the measure's local box (below that the box sets the measure and the update would run away),
     and within a factor 2 of the recording's own measure."""
-    mode = calibration.grid.modes[0]
-    measured_deg = real.width_beams * mode.fov_deg / max(mode.n_beams - 1, 1)
+    measured_deg = _width_deg(real, calibration.grid)
     width_bounds = ((max(0.2, measured_deg / 2), min(60.0, measured_deg * 2)) if resolved_width(real)
                     else (look.patch_width_deg, look.patch_width_deg))
     for _ in range(3):
-        sim = _seabed_summary(_sim_images(calibration, chain, n, seed, gain=False, look=look))
+        sim = _seabed_summary(_seabed_table(_sim_images(calibration, chain, n, seed, gain=False, look=look)))
         if not math.isfinite(sim.contrast):
             break
         look = SeabedLook(float(np.clip(look.patch_contrast * real.contrast / max(sim.contrast, 1e-3), 0.0, 2.5)),
@@ -394,7 +404,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     real_onsets = _frame_onsets(images, [_bin(f) for f in frames])
 
     # seabed patchiness and targets, measured on the recording
-    real_seabed = _seabed_summary(images)
+    real_table = _seabed_table(images)
+    real_seabed = _seabed_summary(real_table)
     if math.isfinite(real_seabed.width_beams) and not resolved_width(real_seabed):
         notes.append(f"seabed patches {real_seabed.width_beams:.0f} beams wide, near the measure's "
                      f"{measure.LOCAL_BOX}-beam box: their width is the recording's measure, not matched")
@@ -415,10 +426,9 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                           _estimate(np.array(where), np.median, rng, b) if where else _fixed(0.5),
                           _estimate(np.array(highlights), np.median, rng, b) if highlights else _fixed(2.0), 1.0)
     mean_bin = float(np.median([_bin(f) for f in frames]))
-    beam_deg = grid.modes[0].fov_deg / max(grid.modes[0].n_beams - 1, 1)
     look = SeabedLook(patch_contrast=min(2.5, real_seabed.contrast / 0.6),
                       patch_scale_m=real_seabed.scale_rows * mean_bin,
-                      patch_width_deg=float(np.clip(real_seabed.width_beams * beam_deg, 0.2, 60.0)),
+                      patch_width_deg=float(np.clip(_width_deg(real_seabed, grid), 0.2, 60.0)),
                       dark_fraction=min(0.8, real_seabed.dark_fraction), roughness_m=0.01)
     seabed = _fixed_seabed(look)
     defaults = [EFFECTS[name]() for name in PIPELINE_ORDER]
@@ -484,7 +494,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
 
     # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
     fitted = _effect_intervals(clean, chain, images, config, rng, log)
-    seabed_intervals = _seabed_intervals(images, look, real_seabed, rng, b)
+    seabed_intervals = _seabed_intervals(real_table, look, real_seabed, rng, b)
     calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
 
     # before / after
@@ -526,11 +536,10 @@ def _effect_intervals(clean: Sequence[SonarImage], chain: list[Effect], images: 
     return tuple(out)
 
 
-def _seabed_intervals(images: list[np.ndarray], look: SeabedLook, real: SeabedStats, rng: np.random.Generator,
+def _seabed_intervals(stats: np.ndarray, look: SeabedLook, real: SeabedStats, rng: np.random.Generator,
                       resamples: int) -> SeabedTerms:
-    """The matched seabed terms scale with the recording's statistics: their intervals are the statistics'
-    bootstrap intervals carried through that proportion."""
-    stats = np.array([dataclasses.astuple(s) for s in (measure.seabed_stats(i) for i in images) if s is not None])
+    """The matched seabed terms scale with the recording's statistics (`stats`: `_seabed_table`): their intervals
+    are the statistics' bootstrap intervals carried through that proportion."""
 
     def carried(column: int, value: float, reference: float, additive: bool = False) -> Estimate:
         e = _estimate(stats[:, column], np.median, rng, resamples)

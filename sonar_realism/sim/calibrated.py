@@ -101,21 +101,23 @@ def _polar_noise(rng: np.random.Generator, n: int, spacing_m: float, look: Seabe
     wrapped = np.pad(white, ((0, 0), (pad, pad)), mode="wrap")
     field = cv2.GaussianBlur(wrapped, (0, 0), sigmaX=sigma_angle / coarse, sigmaY=sigma_r / coarse,
                              borderType=cv2.BORDER_REFLECT_101)[:, pad:-pad]
-    columns, rows = _polar_cells(n, coarse, n_angles)
-    out = cv2.remap(np.ascontiguousarray(field), columns, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    turns, radius = _polar_cells(n)
+    out = cv2.remap(np.ascontiguousarray(field), turns * np.float32(n_angles), radius * np.float32(1 / coarse),
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
     return (out - out.mean()) / max(float(out.std()), 1e-12)
 
 
 @functools.lru_cache(maxsize=16)
-def _polar_cells(n: int, coarse: float, n_angles: int) -> tuple[np.ndarray, np.ndarray]:
-    """(angle, range) coordinates on the coarse polar grid of every cell of the n x n patch (one per grid mode)."""
+def _polar_cells(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every cell of the n x n patch in polar form about its centre: angle in turns [0, 1] and radius in cells
+    (one pair per grid mode's patch size)."""
     cells = np.arange(n, dtype=np.float32) - (n - 1) / 2
     x, y = np.meshgrid(cells, cells, indexing="ij")
-    columns = ((np.arctan2(y, x) + math.pi) * (n_angles / (2 * math.pi))).astype(np.float32)
-    rows = (np.hypot(x, y) / coarse).astype(np.float32)
-    for table in (columns, rows):
+    turns = ((np.arctan2(y, x) + math.pi) / (2 * math.pi)).astype(np.float32)
+    radius = np.hypot(x, y).astype(np.float32)
+    for table in (turns, radius):
         table.flags.writeable = False
-    return columns, rows
+    return turns, radius
 
 
 def _place_target(maker: _ObjectMaker, rng: np.random.Generator, calibration: Calibration, pose: Pose,

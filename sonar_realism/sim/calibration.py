@@ -97,7 +97,7 @@ class SeabedTerms:
 
     patch_contrast: Estimate  # rms of log local mean amplitude
     patch_scale_m: Estimate  # correlation length of the mean level along range
-    # ... and across the fan, as an angle: recorded seabeds are patchy in arcs about the sensor, not in discs
+    # ... and across the fan, as an angle (the Oculus recording's patches are as many beams wide at every range)
     patch_width_deg: Estimate
     dark_fraction: Estimate  # share of the seabed in dark patches
     roughness_m: Estimate
