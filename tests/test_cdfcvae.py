@@ -1,5 +1,6 @@
 """cDFCVAE model, VGG19 perceptual loss, checkpoints."""
 
+import dataclasses
 import json
 import pickle
 
@@ -86,6 +87,27 @@ def test_sampling_decodes_as_the_plain_network_does(skips):
         return torch.sigmoid(decoder.out(h))
 
     torch.testing.assert_close(decoder(z, skips_features), plain(z, skips_features), atol=1e-5, rtol=1e-5)
+
+
+def test_input_detail_sharpens_a_coarse_decoder_where_the_input_has_an_edge_and_leaves_flat_ground_alone():
+    """detail "input": the mean field keeps the input's edges finer than the decoder's output stride (a seabed
+    onset one row wide) and equals the decoded field where the input is flat at that scale."""
+    cfg = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8, 16), latent_dim=8, bottleneck_hw=(2, 2), skips=1,
+                        output_stride=2, texture="speckle", detail="input")
+    torch.manual_seed(0)
+    model = CDFCVAE(cfg).eval()
+    plain = CDFCVAE(dataclasses.replace(cfg, detail="none")).eval()
+    plain.load_state_dict(model.state_dict())
+    onset = torch.full((1, 1, 32, 32), 0.05)
+    onset[..., 13:, :] = 0.6  # the step falls inside a 2-row coarse cell (rows 12, 13)
+    flat = torch.full((1, 1, 32, 32), 0.4)
+    with torch.no_grad():
+        detailed, decoded = model.sample(onset, 1, 0.0), plain.sample(onset, 1, 0.0)
+        assert torch.allclose(model.sample(flat, 1, 0.0), plain.sample(flat, 1, 0.0), atol=1e-6)
+    row_jump = lambda image: float((image[0, 0, 1:, 8:24] - image[0, 0, :-1, 8:24]).mean(1).max())  # noqa: E731
+    assert row_jump(detailed) > 1.3 * row_jump(decoded)
+    with pytest.raises(ConfigError, match="output_stride"):
+        from_dict(CDFCVAEConfig, {"output_stride": 1, "detail": "input"})
 
 
 @pytest.mark.parametrize("bad", [{"grid": [30, 32]}, {"skips": 4}, {"widths": [8]}, {"dropout": 1.0}])

@@ -60,6 +60,10 @@ class CDFCVAEConfig:
     # "speckle": samples carry fitted sensor speckle (models/speckle.py) on the mean field the decoder gives,
     # and the training target is the frame's local mean; "none": the paper's decoder output as is.
     texture: Literal["none", "speckle"] = "none"
+    # "input": the mean field's detail finer than the decoder's output (its output_stride) comes from the input
+    # frame: decoded × T(x) / coarse(T(x)), T the reconstruction target. The decoder sets the level, the input
+    # keeps its sharp edges (seabed onset, targets, shadows), which a coarse decoder blurs. "none": as decoded.
+    detail: Literal["none", "input"] = "none"
 
     @property
     def decoded_levels(self) -> int:
@@ -83,6 +87,9 @@ class CDFCVAEConfig:
             raise ConfigError("model.latent_dim and model.bottleneck_hw must be positive")
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"model.dropout {self.dropout}: in [0, 1)")
+        if self.detail == "input" and self.output_stride < 2:
+            raise ConfigError("model.detail 'input' takes the detail finer than the decoder's output from the input; "
+                              "with output_stride 1 there is none (use 2 or more, or detail 'none')")
 
 
 @dataclass(frozen=True)
@@ -250,10 +257,22 @@ class CDFCVAE(nn.Module):
         eps = torch.stack([torch.randn((n, mu.shape[1]), generator=generator, device=mu.device, dtype=mu.dtype)
                            for _ in range(batch)])
         z = (mu[:, None] + temperature * torch.exp(0.5 * logvar)[:, None] * eps).flatten(0, 1)
-        return self.decoder(z, skips).view(batch, n, *x.shape[-2:])
+        decoded = self.decoder(z, skips).view(batch, n, *x.shape[-2:])
+        return decoded * self.fine_detail(x) if self.cfg.detail == "input" else decoded
+
+    def fine_detail(self, x: torch.Tensor) -> torch.Tensor:
+        """[B, 1, H, W]: the input's local mean over its coarse local mean at the decoder's output stride (about 1
+        away from edges). DETAIL_FLOOR keeps the ratio from amplifying the near-empty water column's noise."""
+        target = self.reconstruction_target(x)
+        stride = self.cfg.output_stride
+        coarse = F.interpolate(F.avg_pool2d(target, stride), size=target.shape[-2:], mode="bilinear",
+                               align_corners=False)
+        return ((target + DETAIL_FLOOR) / (coarse + DETAIL_FLOOR)).clamp_(max=DETAIL_CLIP)
 
 
 TARGET_BLUR_SIGMA = 1.0  # grid cells: what a mean field on the model grid can hold
+DETAIL_FLOOR = 0.02  # full scale (5 of 255): below it a ratio of local means is noise, not structure
+DETAIL_CLIP = 4.0  # a small bright target on a dark coarse cell; more would be one noisy cell over a floor
 
 
 def _gaussian_kernel(sigma: float) -> torch.Tensor:

@@ -64,6 +64,10 @@ from sonar_realism.models.speckle_fit import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
 TEXTURE_FIT_FRAMES = 96  # evenly spaced over the training recordings: enough for 129 quantiles in 8 level bins
+# The speckle is fitted around the decoder's output as the translator draws it by default (temperature 1):
+# latent draws come out darker than the posterior mean (about 14 % in the mean on the calibrated Oculus sim),
+# and a table fitted around the mean darkened every translated frame by that much (docs/RESULTS.md).
+TEXTURE_FIT_TEMPERATURE = 1.0
 
 
 @dataclass(frozen=True)
@@ -315,11 +319,8 @@ class Trainer:
 
     def fit_texture(self, real_dir: str | Path, train_recordings: set[str]) -> None:
         """Fit the speckle layer on the training recordings' frames (see `fit_model_texture`)."""
-        frames = [frame for source in recording_sources(Path(real_dir)) for frame in read_frames(source)
-                  if recording_of(frame, source.name) in train_recordings and frame.intensity.ndim == 2]
-        if not frames:
-            raise ConfigError(f"{real_dir}: no single-sample training frames to fit the texture on")
-        fit_model_texture(self.model, frames, self.cfg.normalisation, self.device, self.cfg.seed)
+        fit_model_texture(self.model, texture_frames(real_dir, train_recordings), self.cfg.normalisation,
+                          self.device, self.cfg.seed)
 
     # --- persistence
     def _checkpoint_info(self) -> dict[str, Any]:
@@ -401,21 +402,31 @@ class Trainer:
         return record
 
 
+def texture_frames(real_dir: str | Path, recordings: set[str] | None = None) -> list[SonarImage]:
+    """The single-sample frames of `recordings` (None: all) under `real_dir`: what the speckle layer is fitted on."""
+    frames = [frame for source in recording_sources(Path(real_dir)) for frame in read_frames(source)
+              if (recordings is None or recording_of(frame, source.name) in recordings) and frame.intensity.ndim == 2]
+    if not frames:
+        raise ConfigError(f"{real_dir}: no single-sample frames of {sorted(recordings or ['any recording'])} to fit "
+                          "the texture on")
+    return frames
+
+
 @torch.no_grad()
 def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: str, device: torch.device,
                       seed: int = 0) -> None:
-    """Fit the model's speckle layer (models/speckle.py) on real frames at their own resolution, around the
-    decoder's reconstruction of each (the posterior mean): the texture the decoder cannot express. Uses
-    TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
+    """Fit the model's speckle layer (models/speckle.py) on real frames at their own resolution, around one
+    decoded draw of each at TEXTURE_FIT_TEMPERATURE (the mean field a translation multiplies): the texture the
+    decoder cannot express. Uses TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
     assert model.texture is not None
     picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
     model.eval()
     images, means = [], []
+    generator = torch.Generator(device=device).manual_seed(seed)
     for frame in picked:
         x = torch.from_numpy(to_model_grid(frame, model.cfg.grid, normalisation))[None, None]
-        mu, _, skips = model.encoder_real(x.to(device))
-        mean = model.decoder(mu, skips)[0, 0].float().cpu().numpy()
-        means.append(np.clip(from_model_grid(frame, mean), 0.0, 1.0))
+        mean = model.sample(x.to(device), 1, TEXTURE_FIT_TEMPERATURE, generator, domain="real")[0, 0]
+        means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
         images.append(normalise(frame, "frame_max"))
     model.texture.set_fit(*fit_speckle(images, means, seed=seed))
 

@@ -1,0 +1,48 @@
+"""scripts/refit_texture.py: a checkpoint's speckle layer refitted with the current rule, its weights kept."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from sonar_realism.errors import ConfigError
+from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
+from sonar_realism.io import write_frames
+from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
+from tests.repo_script import load_repo_script
+
+refit = load_repo_script("scripts/refit_texture.py", "refit_texture_under_test")
+
+
+def _frames(recording: str, seed: int) -> list[SonarImage]:
+    rng = np.random.default_rng(seed)
+    rows = np.arange(64)[:, None]
+    return [SonarImage((rng.rayleigh(30, (64, 64)) + 80 * (rows > 20)).clip(0, 255).astype(np.uint8),
+                       uniform_ranges(64, 10.0), uniform_azimuths(64, np.radians(120)), seq=i,
+                       meta={"recording": recording}) for i in range(6)]
+
+
+def test_refit_keeps_the_weights_switches_the_detail_and_refuses_a_recording_it_lacks(tmp_path, monkeypatch):
+    cfg = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0,
+                        output_stride=2, upsample="resize_conv", texture="speckle")
+    torch.manual_seed(0)
+    source = save_checkpoint(CDFCVAE(cfg), tmp_path / "before.safetensors", {"normalisation": "frame_max"})
+    write_frames([*_frames("rec_a", 0), *_frames("rec_b", 1)], tmp_path / "real")
+    out = tmp_path / "after.safetensors"
+    monkeypatch.setattr(sys, "argv", ["refit_texture.py", "--checkpoint", str(source), "--real",
+                                      str(tmp_path / "real"), "--recordings", "rec_a", "--detail", "input",
+                                      "--out", str(out)])
+    refit.main()
+    before, _ = load_checkpoint(source)
+    after, info = load_checkpoint(out)
+    assert after.cfg.detail == "input" and after.texture.is_fitted and not before.texture.is_fitted
+    assert info["texture_refit_from"] == "before.safetensors" and info["normalisation"] == "frame_max"
+    weights = {k: v for k, v in before.state_dict().items() if not k.startswith("texture.")}
+    assert all(torch.equal(v, after.state_dict()[k]) for k, v in weights.items())
+    monkeypatch.setattr(sys, "argv", ["refit_texture.py", "--checkpoint", str(source), "--real",
+                                      str(tmp_path / "real"), "--recordings", "rec_z", "--out", str(out)])
+    with pytest.raises(ConfigError, match="rec_z"):
+        refit.main()
