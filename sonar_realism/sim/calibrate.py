@@ -493,7 +493,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         f"pitch sd {m.pitch_sd_deg.value:.2f} deg")
 
     # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
-    fitted = _effect_intervals(clean, chain, images, config, rng, log)
+    fitted = _effect_intervals(calibration, chain, images, config, rng, log)
     seabed_intervals = _seabed_intervals(real_table, look, real_seabed, rng, b)
     calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
 
@@ -515,12 +515,20 @@ def _export_rescaled(frames: Sequence[SonarImage]) -> bool:
     return all(f.intensity.dtype == np.uint8 and int(f.intensity.max()) == 255 for f in frames)
 
 
-def _effect_intervals(clean: Sequence[SonarImage], chain: list[Effect], images: list[np.ndarray],
+def _effect_intervals(calibration: Calibration, chain: list[Effect], images: list[np.ndarray],
                       config: CalibrateConfig, rng: np.random.Generator, log: Any) -> tuple[FittedParameter, ...]:
+    """5-95 % intervals of the effect parameters over refits that each redraw both sources of their spread: a
+    bootstrap resample of the recording's frames, and the simulated frames the search compares with it (another
+    sim seed). Several parameters trade off in the fingerprint (gamma, the TVG noise and law, sidelobes), so one
+    search lands on one of several near-equal fits depending on its seed: a refit on the same simulated frames
+    with a small step (before 2026-11-23) gave intervals that did not cover the fit of another `--seed`."""
     values: dict[tuple[str, str], list[float]] = {(e, p): [] for e, p, _ in FITTED}
-    for _ in range(config.effect_bootstrap):
+    n = config.sim_frames
+    for draw in range(config.effect_bootstrap):
         resample = [images[i] for i in rng.integers(0, len(images), len(images))]
-        refit, _ = fit(clean, fingerprint(resample), config.seed, rounds=1, start=chain, step=0.06)
+        sim_seed = int(np.random.SeedSequence([config.seed, 1 + draw]).generate_state(1)[0])
+        clean = [calibrated_view(calibration, sim_seed, i)[0] for i in range(n)]
+        refit, _ = fit(clean, fingerprint(resample), sim_seed, rounds=2, start=chain, step=0.25)
         by_name = {e.name: e for e in refit}
         for e, p in values:
             values[(e, p)].append(float(getattr(by_name[e], p)))
@@ -532,7 +540,8 @@ def _effect_intervals(clean: Sequence[SonarImage], chain: list[Effect], images: 
                                                                                                              value)
         out.append(FittedParameter(e, p, Estimate(value, float(low), float(high))))
     if log:
-        print(f"calibrate: effect intervals from {config.effect_bootstrap} bootstrap refits", file=log)
+        print(f"calibrate: effect intervals from {config.effect_bootstrap} refits (resampled recording, fresh sim "
+              "seed each)", file=log)
     return tuple(out)
 
 
