@@ -83,10 +83,16 @@ def sim_inputs(folders: list[str], per_folder: int) -> tuple[list[SonarImage], l
 
 def two_sample(real: list[np.ndarray], generated: list[np.ndarray], real_grid: np.ndarray,
                generated_grid: np.ndarray, seeds: list[int]) -> dict[str, float]:
-    texture = [texture_two_sample_test(real, generated, TextureTestConfig(seed=s)).accuracy for s in seeds]
-    whole = [classifier_two_sample_test(real_grid, generated_grid, seed=s).accuracy for s in seeds]
-    return {"texture_accuracy": float(np.mean(texture)), "texture_runs": texture,
-            "whole_frame_accuracy": float(np.mean(whole)), "whole_frame_runs": whole}
+    # Accuracy (the issue's measure) thresholds at 0.5 and swings with the classifier's calibration between folds
+    # (per seed 0.50-0.84 on one pair of sets); the AUC of the same held-out scores does not: both are kept.
+    texture = [texture_two_sample_test(real, generated, TextureTestConfig(seed=s)) for s in seeds]
+    whole = [classifier_two_sample_test(real_grid, generated_grid, seed=s) for s in seeds]
+    return {"texture_accuracy": float(np.mean([t.accuracy for t in texture])),
+            "texture_runs": [t.accuracy for t in texture], "texture_auc": float(np.mean([t.auc for t in texture])),
+            "texture_auc_runs": [t.auc for t in texture],
+            "whole_frame_accuracy": float(np.mean([w.accuracy for w in whole])),
+            "whole_frame_runs": [w.accuracy for w in whole], "whole_frame_auc": float(np.mean([w.auc for w in whole])),
+            "whole_frame_auc_runs": [w.auc for w in whole]}
 
 
 def texture_statistics(native: list[np.ndarray], grid: np.ndarray) -> dict[str, float]:
@@ -187,19 +193,27 @@ def main() -> int:
 
 def markdown(record: dict) -> str:
     real = record["real_held_out"]
-    lines = ["| method | texture 2-sample | whole-frame 2-sample | contrast / real | K shape / real "
+    lines = ["| method | texture 2-sample: accuracy (AUC), per seed | whole-frame 2-sample: accuracy (AUC), per seed "
+             "| contrast / real | K shape / real "
              "| grain range / real | grain beams / real | diversity (std ratio) | mask IoU / input's "
              "| edge SSIM (mean) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, row in record["methods"].items():
         diversity = row.get("diversity")
         lines.append(
-            f"| {name} | {row['texture_accuracy']:.2f} | {row['whole_frame_accuracy']:.2f} "
+            f"| {name} | {_runs(row, 'texture')} | {_runs(row, 'whole_frame')} "
             f"| {row['contrast'] / real['contrast']:.2f} | {row['k_shape'] / real['k_shape']:.2f} "
             f"| {row['grain_range'] / real['grain_range']:.2f} | {row['grain_beams'] / real['grain_beams']:.2f} "
             f"| {diversity['std_ratio'] if diversity else float('nan'):.2f} "
             f"| {row.get('mask_iou_ratio') or float('nan'):.2f} | {row.get('edge_ssim_mean', float('nan')):.2f} |")
     return "\n".join(lines)
+
+
+def _runs(row: dict, test: str) -> str:
+    """'mean (AUC mean): per-seed accuracies' (rows of an older goals.json have no AUC)."""
+    runs = " / ".join(f"{value:.2f}" for value in row[f"{test}_runs"])
+    auc = f" ({row[f'{test}_auc']:.2f})" if f"{test}_auc" in row else ""
+    return f"**{row[f'{test}_accuracy']:.2f}**{auc}: {runs}"
 
 
 if __name__ == "__main__":
