@@ -8,10 +8,11 @@ held-out split only, and every choice is repeated over bootstrap resamples of th
 candidate wins is its stability, and a step whose runner-up wins often is reported as ambiguous.
 
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
-after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. Last,
-each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
-whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
-lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
+after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. A
+selected multipath must then show its ghost in the real frames (diagnose/ghost.py), or it is dropped as
+unconfirmed. Last, each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per
+beam): an effect whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple
+the catalogue lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
 """
 
 from __future__ import annotations
@@ -470,6 +471,9 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
 
     Pruning then takes the effect whose removal costs least and compares the set without it against the whole
     set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
+
+    The ghost check then drops a selected multipath whose ghost (each frame's own scene again at the fitted
+    offset) the real held-out frames do not show (`ghost.check_ghost`; listed in `unconfirmed`).
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
     others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
