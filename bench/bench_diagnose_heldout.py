@@ -76,12 +76,13 @@ class Read:
     residual_places: list[dict[str, Any]]  # the residual's entries that carry a range_m or bearing_deg interval
     ambiguous: Any  # the optional `ambiguous` key, None when absent
     setup: list[str]  # selected geometry or scene terms (`selected_effects[i].kind` other than "effect")
+    unconfirmed: list[str]  # effects dropped because the real frames lack their signature (optional key)
 
 
 def read_diagnosis(result: Any) -> Read:
     """Everything this bench learns from a diagnosis, read from diagnosis.json's DESIGN contract keys (plus the
-    optional `ambiguous` and `selected_effects[i].kind`): the result object is only asked for its JSON form,
-    whatever its Python type."""
+    optional `ambiguous`, `unconfirmed` and `selected_effects[i].kind`): the result object is only asked for its
+    JSON form, whatever its Python type."""
     payload = result if isinstance(result, dict) else result.to_json()
     residual = payload.get("residual") or {}
     # places sit in `residual` itself or under `residual.where`; profile bins name their interval `span`
@@ -103,7 +104,8 @@ def read_diagnosis(result: Any) -> Read:
                 ranked=[(str(r["name"]), float(r["gap_after"])) for r in payload["ranked_effects"]],
                 residual_places=places, ambiguous=payload.get("ambiguous"),
                 setup=[str(e["name"]) for e in payload.get("selected_effects") or []
-                       if isinstance(e, dict) and e.get("kind", "effect") != "effect"])
+                       if isinstance(e, dict) and e.get("kind", "effect") != "effect"],
+                unconfirmed=[str(u["effect"]) for u in payload.get("unconfirmed") or [] if isinstance(u, dict)])
 
 
 # --- frames ----------------------------------------------------------------------------------------------------------
@@ -156,7 +158,7 @@ def run_case(sim: list[SonarImage], real_source: list[SonarImage], implementatio
         "gap_before": read.gap_before, "gap_after_selected": read.gap_after_selected,
         "gap_closed": 1.0 - read.gap_after_selected / read.gap_before if read.gap_before > 0 else 0.0,
         "ambiguous": bool(read.ambiguous) if read.ambiguous is not None else None,
-        "blamed_on_setup": read.setup, "seconds": time.perf_counter() - started}
+        "blamed_on_setup": read.setup, "unconfirmed": read.unconfirmed, "seconds": time.perf_counter() - started}
     if entry and family != UNCATALOGUED:
         row["top1_correct"] = named == family
     if entry and family == UNCATALOGUED:

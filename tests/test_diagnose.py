@@ -19,6 +19,7 @@ from sonar_realism.diagnose.gap import (
     family_gaps,
     gap,
 )
+from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import SelectionProblem, Solo, greedy_select, physics_off
@@ -304,3 +305,42 @@ def test_bad_input_says_what_is_needed(tmp_path, capsys):
                  str(tmp_path / "out")])
     assert code == 2
     assert "error" in capsys.readouterr().err
+
+
+def ghost_shaped(frame: SonarImage, donor: SonarImage, offset_m: float, coeff: float) -> SonarImage:
+    """`frame` plus far-range power shaped as a ghost at `offset_m`, but a copy of *another* scene (`donor`): the
+    statistics of a multipath, without the copy of the frame's own scene that a ghost is."""
+    bins = int(round(offset_m / (frame.ranges_m[1] - frame.ranges_m[0])))
+    x, y = frame.normalized(), donor.normalized()
+    far = np.zeros_like(y)
+    far[bins:] = y[:-bins] ** 2
+    return frame.replace(intensity=np.sqrt(x * x + coeff ** 2 * far).astype(np.float32), intensity_scale=1.0)
+
+
+def test_multipath_without_its_ghost_is_not_blamed_and_a_true_ghost_is():
+    # The organic scene's world difference was blamed on multipath (RESULTS, #13 round 3, kind b): more power at
+    # far range, which a ghost also adds. A ghost copies each frame's own scene at its offset; another world does
+    # not, so the real frames' per-frame content shows no excess correlation at that lag.
+    frames, donors = sim_frames(24, seed=3), sim_frames(12, seed=8)
+    config = dataclasses.replace(FAST, effects=("multipath", "range_blur"))
+    shaped = [ghost_shaped(f, d, 2.0, 0.6) for f, d in zip(frames[1::2], donors, strict=True)]
+    world = diagnose(frames[0::2], shaped, config)
+    assert world.selected == ()
+    assert [u.effect for u in world.unconfirmed] == ["multipath"]
+    assert world.unconfirmed[0].excess < world.unconfirmed[0].needed
+    assert world.selection_path[-1].action == "unconfirmed"
+    assert world.unconfirmed[0].gap_with_effect < world.unconfirmed[0].gap_without  # it did close part of the gap
+    ghost = make_effect("multipath", reflection_coeff=0.6, ghost_offset_m=2.0)
+    rng = np.random.default_rng(0)
+    true = diagnose(frames[0::2], [apply_effects(f, [ghost], rng) for f in frames[1::2]], config)
+    assert true.selected == ("multipath",) and true.unconfirmed == ()
+
+
+def test_lag_correlation_peaks_at_a_copy_of_each_frames_content():
+    rng = np.random.default_rng(1)
+    content = rng.rayleigh(0.2, (16, 96, 32)).astype(np.float32)
+    copied = np.sqrt(content ** 2 + 0.5 * np.pad(content, ((0, 0), (12, 0), (0, 0)))[:, :96] ** 2)
+    plain = range_lag_correlation(content)
+    check = check_ghost(range_lag_correlation(copied), plain, 12.0)
+    assert check.confirmed and int(np.argmax(range_lag_correlation(copied)[5:40])) + 5 == 12
+    assert not check_ghost(range_lag_correlation(rng.rayleigh(0.2, (16, 96, 32))), plain, 12.0).confirmed

@@ -23,6 +23,7 @@ from sonar_realism.diagnose.gap import (
     gap_closed,
     headline,
 )
+from sonar_realism.diagnose.ghost import range_lag_correlation
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     AmbiguousGroup,
@@ -160,7 +161,9 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
-                               gap_before, reference.ranges_m, bearings_deg, terms)
+                               gap_before, reference.ranges_m, bearings_deg, terms,
+                               real_lags=range_lag_correlation(real_hold),
+                               sim_lags=lambda effects: range_lag_correlation(holdout_stats(effects)[0]))
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)
@@ -237,6 +240,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         bootstrap_resamples=config.bootstrap,
         seconds=time.perf_counter() - started,
         scene_start=scene,
+        unconfirmed=tuple(selection.unconfirmed),
         examples=Examples(raw_eval[0], after_images[0], real_hold[0]))
 
 

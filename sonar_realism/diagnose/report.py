@@ -134,6 +134,12 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                       f"pattern against {s.gap_with_effect:.3g} with the effect, so its part of the gap is left in the "
                       "residual: a gain pattern the catalogue lacks, or the sim's intensity scale.")
                  for s in d.gain_stand_ins]
+    unconfirmed = [Text(f"Not blamed: **{u.effect}** closed part of the gap (held-out gap {u.gap_with_effect:.3g} "
+                        f"with it, {u.gap_without:.3g} without), but the real frames show no ghost: their excess "
+                        f"correlation between rows {u.lag_bins:.0f} bins apart is {u.excess:.3f}, below "
+                        f"{u.needed:.3f}. What it mimicked is a difference of the scene or the set-up (another "
+                        "seabed, other objects): residual.")
+                   for u in d.unconfirmed]
     pattern = res.gain_pattern
     gain_text = (f"A fixed gain pattern on top of the selected effects closes a further "
                  f"{100 * pattern.share_of_gap:.0f}% of the gap before (held-out gap {pattern.gap:.3g}); it stands "
@@ -164,7 +170,8 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                  "effect the later ones make redundant, and an effect that does no better than a fixed gain "
                  "pattern is not blamed. \"Chosen in resamples\": how often the step's pick was the best candidate "
                  f"over {d.bootstrap_resamples} bootstrap resamples of the held-out frames."),
-            selected, *setup, *ambiguous, steps, Text(f"Selection stopped: {d.selection_stopped}."), *stand_ins,
+            selected, *setup, *ambiguous, steps, Text(f"Selection stopped: {d.selection_stopped}."), *unconfirmed,
+            *stand_ins,
             Figure(figures["curve"], "held-out gap along the selection", width_percent=70)]),
         Section("Residual: what no catalogued effect explains", [
             residual, Text("\n".join(_where_lines(res.where))), *residual_figures]),
@@ -176,7 +183,8 @@ def _params(params: dict[str, Any]) -> str:
 
 
 def _step_label(step: Step) -> str:
-    return {"add": "+", "remove": "-", "gain_stand_in": "-", "refit": "refit "}.get(step.action, "") + step.effect
+    signs = {"add": "+", "remove": "-", "unconfirmed": "-", "gain_stand_in": "-", "refit": "refit "}
+    return signs.get(step.action, "") + step.effect
 
 
 def _where_lines(where: Where) -> list[str]:

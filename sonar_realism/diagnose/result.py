@@ -113,10 +113,11 @@ class Alternative:
 @dataclass(frozen=True)
 class Step:
     """One step of the selection: `action` is "start" (nothing applied), "add", "refit" (pruning refitted the
-    whole set, which fitted better), "remove" (pruned) or "gain_stand_in" (removed: a gain pattern does its
-    job); `gap` the held-out gap after it; `alternatives` the candidates an "add" step chose among."""
+    whole set, which fitted better), "remove" (pruned), "unconfirmed" (removed: the real frames lack its
+    signature, see Unconfirmed) or "gain_stand_in" (removed: a gain pattern does its job); `gap` the held-out gap
+    after it; `alternatives` the candidates an "add" step chose among."""
 
-    action: Literal["start", "add", "refit", "remove", "gain_stand_in"]
+    action: Literal["start", "add", "refit", "remove", "unconfirmed", "gain_stand_in"]
     effect: str
     gap: float
     alternatives: tuple[Alternative, ...] = ()
@@ -213,6 +214,22 @@ class Residual:
 
 
 @dataclass(frozen=True)
+class Unconfirmed:
+    """A selected effect dropped because the real frames lack its signature: a multipath whose ghost copy of each
+    frame's scene is not there (`lag_bins`: the fitted offset in range bins; `excess`: the real frames' excess
+    correlation between rows that far apart over the corrected sim's, `needed` the least that confirms a ghost).
+    What it closed of the gap is a difference of the world or the set-up, not this effect: it stays residual."""
+
+    effect: str
+    params: dict[str, Any]
+    lag_bins: float
+    excess: float
+    needed: float
+    gap_with_effect: float
+    gap_without: float
+
+
+@dataclass(frozen=True)
 class Auc:
     """Cross-validated classifier two-sample AUC and its standard error."""
 
@@ -252,7 +269,9 @@ class Diagnosis:
     """The whole diagnosis. `verdict`: "selected" (confident names), "ambiguous" (at least one step could not
     tell its candidates apart: see `ambiguous`), "residual_only" (nothing selected) or "not_enough_frames" (too
     few held-out frames for the bootstrap to separate anything: no ranking). `scene_start`: where the calibration
-    put the real setting, when geometry and scene terms were candidates (None: sensor effects only)."""
+    put the real setting, when geometry and scene terms were candidates (None: sensor effects only).
+    `unconfirmed`: selected effects dropped because the real frames lack their signature (a multipath without its
+    ghost)."""
 
     verdict: Verdict
     gap_measure: str
@@ -282,6 +301,7 @@ class Diagnosis:
     bootstrap_resamples: int
     seconds: float
     scene_start: SceneStart | None = None
+    unconfirmed: tuple[Unconfirmed, ...] = ()
     examples: Examples | None = dataclasses.field(default=None, compare=False)
 
     def blamed_on_setup(self) -> tuple[SelectedEffect, ...]:

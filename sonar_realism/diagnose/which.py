@@ -8,10 +8,11 @@ held-out split only, and every choice is repeated over bootstrap resamples of th
 candidate wins is its stability, and a step whose runner-up wins often is reported as ambiguous.
 
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
-after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. Last,
-each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
-whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
-lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
+after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. A
+selected multipath must then show its ghost in the real frames (diagnose/ghost.py), or it is dropped as
+unconfirmed. Last, each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per
+beam): an effect whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple
+the catalogue lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
 """
 
 from __future__ import annotations
@@ -27,13 +28,22 @@ import numpy as np
 
 from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
 from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
+from sonar_realism.diagnose.ghost import check_ghost, ghost_lag_bins
 from sonar_realism.diagnose.parallel import parallel_map
-from sonar_realism.diagnose.result import Alternative, GainPatternFit, GainSpot, RankedEffect, StandIn, Step
+from sonar_realism.diagnose.result import (
+    Alternative,
+    GainPatternFit,
+    GainSpot,
+    RankedEffect,
+    StandIn,
+    Step,
+    Unconfirmed,
+)
 from sonar_realism.diagnose.scene_terms import SceneTerm, apply_scene_terms, kind_of
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import Effect, apply_effects, make_effect
+from sonar_realism.sim.effects import Effect, Multipath, apply_effects, make_effect
 
 # A gain pattern's smooth part has this many degrees of freedom per axis; channels that stand out from it by more
 # than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB) keep their own gain: a stripe is one beam wide.
@@ -367,7 +377,9 @@ class SelectionProblem:
     `holdout(effects, gain)` -> (gap, statistics or None), the held-out real statistics `target` and the raw sim's
     `stats_before` (None: no significance test, no bootstrap frequencies), and the gap before. `ranges_m` /
     `bearings_deg` place a gain pattern. `scene_terms`: the geometry and scene candidates' starting points (empty:
-    sensor effects only)."""
+    sensor effects only). `real_lags` (the real held-out frames' ghost.range_lag_correlation) and `sim_lags`
+    (effects -> the same of the held-out sim corrected by them) test a selected multipath for its ghost (None: no
+    test)."""
 
     fit_frames: Sequence[SonarImage]
     fit_target: Stats
@@ -380,6 +392,8 @@ class SelectionProblem:
     ranges_m: np.ndarray
     bearings_deg: np.ndarray
     scene_terms: Mapping[str, SceneTerm] = dataclasses.field(default_factory=dict)
+    real_lags: np.ndarray | None = None
+    sim_lags: Callable[[Sequence[Effect]], np.ndarray] | None = None
 
     def start(self, name: str) -> Effect:
         """Where a candidate's search starts: a geometry or scene term's start, else the catalogue's default."""
@@ -390,7 +404,8 @@ class SelectionProblem:
 class Selection:
     """`effects`: the selected effects as finally fitted; `path`: every step taken; `stopped`: why the forward
     selection ended; `stand_ins`: effects dropped because a gain pattern explained as much; `gap`: the held-out
-    gap after `effects`; `stats`: their held-out statistics."""
+    gap after `effects`; `stats`: their held-out statistics; `unconfirmed`: effects dropped because the real
+    frames lack their signature."""
 
     effects: list[Effect]
     path: list[Step]
@@ -398,6 +413,7 @@ class Selection:
     stand_ins: list[StandIn]
     gap: float
     stats: Stats | None
+    unconfirmed: list[Unconfirmed] = dataclasses.field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -455,6 +471,9 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
 
     Pruning then takes the effect whose removal costs least and compares the set without it against the whole
     set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
+
+    The ghost check then drops a selected multipath whose ghost (each frame's own scene again at the fitted
+    offset) the real held-out frames do not show (`ghost.check_ghost`; listed in `unconfirmed`).
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
     others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
@@ -565,6 +584,25 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
 
+    # a multipath must show its ghost: each frame's own scene again at the fitted offset; what it closed without
+    # one is a difference of the world (another seabed) that its added far-range power mimics
+    unconfirmed = []
+    for effect in [e for e in chosen if isinstance(e, Multipath)] if problem.real_lags is not None else []:
+        rest = [e for e in chosen if e is not effect]
+        check = check_ghost(problem.real_lags, problem.sim_lags(rest),
+                            ghost_lag_bins(effect.ghost_offset_m, problem.ranges_m))
+        if check.confirmed:
+            continue
+        rest = refit_each(rest)
+        gap_rest, stats_rest = holdout(rest)
+        unconfirmed.append(Unconfirmed(effect.name, effect.params(), check.lag_bins, check.excess, check.needed,
+                                       current, gap_rest))
+        chosen, current, current_stats = rest, gap_rest, stats_rest
+        path.append(Step("unconfirmed", effect.name, gap_rest))
+        if progress:
+            progress(f"{effect.name}: no ghost in the real frames (excess lag correlation {check.excess:.3f} < "
+                     f"{check.needed:.3f} at {check.lag_bins:.1f} bins): not blamed; held-out gap {gap_rest:.4g}")
+
     def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float, Stats | None]:
         rest = [e for e in chosen if e is not effect]
         pattern = fit_gain_pattern(problem, rest, c)
@@ -599,4 +637,4 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             why = f"fitted with {', '.join(off)} off" if off else "does no more than a gain pattern"
             progress(f"{effect.name} {why} ({fit.describe()}): not blamed; held-out gap {gap_rest:.4g}")
-    return Selection(chosen, path, stopped, stand_ins, current, current_stats)
+    return Selection(chosen, path, stopped, stand_ins, current, current_stats, unconfirmed)
