@@ -72,15 +72,22 @@ class SonarImage:
         if dtype.kind == "f" and intensity is not _CHECKED_INTENSITY.get() and not all_finite(intensity):
             raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
 
-        object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", shape[-2]))
-        object.__setattr__(self, "azimuths_rad", _axis(self.azimuths_rad, "azimuths_rad", shape[-1]))
-
-        if not isinstance(self.stamp_ns, _INTEGER) or self.stamp_ns < 0:
-            raise FrameError(f"stamp_ns: expected a non-negative int, got {self.stamp_ns!r}")
-        if not isinstance(self.seq, _INTEGER) or self.seq < 0:
-            raise FrameError(f"seq: expected a non-negative int, got {self.seq!r}")
-        object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
-        object.__setattr__(self, "seq", int(self.seq))
+        # Fields are set again only where the checked value is another object (attribute writes of a frozen
+        # dataclass go through object.__setattr__, the larger part of this method's time).
+        for name, length in (("ranges_m", shape[-2]), ("azimuths_rad", shape[-1])):
+            given = getattr(self, name)
+            axis = _axis(given, name, length)
+            if axis is not given:
+                object.__setattr__(self, name, axis)
+        for name in ("stamp_ns", "seq"):
+            value = getattr(self, name)
+            if type(value) is not int:
+                if not isinstance(value, _INTEGER):
+                    raise FrameError(f"{name}: expected a non-negative int, got {value!r}")
+                value = int(value)
+                object.__setattr__(self, name, value)
+            if value < 0:
+                raise FrameError(f"{name}: expected a non-negative int, got {value!r}")
         if not isinstance(self.frame_id, str):
             raise FrameError(f"frame_id: expected str, got {type(self.frame_id).__name__}")
         scale = float(self.intensity_scale) or default_scale
