@@ -44,6 +44,7 @@ _REQUIRED_FRAME_KEYS = frozenset({"v", "type", "seq", "stamp_ns", "frame_id", "d
                                   "ranges_m", "azimuths_rad"})
 _REQUIRED_STATUS_KEYS = frozenset({"status"})
 _UNIFORM_AXIS_KEYS = frozenset({"start", "step", "count"})
+_UINT64_END = 1 << 64  # seq, stamp_ns and sent_ns are below this
 _NUMBER_TYPES = (int, float)  # exact types: msgpack decodes to nothing else, and bool must not pass as a number
 _STATUS_COUNTERS = ("seq", "frames_in", "frames_out", "dropped", "seq_gaps", "malformed")
 _STATUS_NUMBERS = ("stamp_ns", "uptime_s", "inference_ms")
@@ -105,7 +106,8 @@ class Message:
 
 def decode_message(parts: Sequence[Any]) -> Message:
     """The frame or status report in one received multipart message; WireError naming topic and field if not."""
-    if not isinstance(parts, Sequence) or len(parts) not in (2, 3):
+    # (recv_multipart gives a list: the exact type test spares the Sequence ABC check on every message)
+    if not (type(parts) is list or isinstance(parts, Sequence)) or len(parts) not in (2, 3):
         count = len(parts) if isinstance(parts, Sequence) else type(parts).__name__
         topic = _topic_for_error(parts[0]) if isinstance(parts, Sequence) and parts else None
         raise WireError("parts", f"expected 3 parts [topic, header, data] or 2 [topic, header], got {count}", topic)
@@ -113,7 +115,7 @@ def decode_message(parts: Sequence[Any]) -> Message:
     header = _unpack_header(parts[1], topic)
     kind = header.get("type")
     sent_ns = header.get("sent_ns")
-    if sent_ns is not None and not _is_uint64(sent_ns):
+    if sent_ns is not None and not (type(sent_ns) is int and 0 <= sent_ns < _UINT64_END):
         raise WireError("sent_ns", f"expected an unsigned 64-bit int (ns since the Unix epoch), got {sent_ns!r}",
                         topic)
     if kind == FRAME_TYPE:
@@ -193,12 +195,6 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
         field, _, reason = str(error).partition(": ")
         raise WireError(field if reason else "frame", reason or str(error), topic) from error
 
-
-_UINT64_END = 1 << 64
-
-
-def _is_uint64(value: Any) -> bool:
-    return type(value) is int and 0 <= value < _UINT64_END
 
 
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
@@ -433,7 +429,7 @@ def _decode_topic(part: Any) -> str:
     if buffer.nbytes > MAX_TOPIC_BYTES:
         raise WireError("topic", f"{buffer.nbytes} bytes exceeds the {MAX_TOPIC_BYTES}-byte limit")
     try:
-        return bytes(buffer).decode("utf-8")
+        return str(buffer, "utf-8")
     except UnicodeDecodeError as error:
         raise WireError("topic", f"not UTF-8 ({error})") from error
 
@@ -448,11 +444,13 @@ def _topic_for_error(part: Any) -> str | None:
 
 def _as_buffer(part: Any, what: str, topic: str | None) -> memoryview:
     """A flat byte view of a message part: a zmq.Frame (its .buffer), bytes, bytearray or memoryview."""
-    source = getattr(part, "buffer", part)  # zmq.Frame exposes the message memory as .buffer
     try:
-        view = memoryview(source)
-    except TypeError as error:
-        raise WireError(what, f"expected bytes or a zmq.Frame, got {type(part).__name__}", topic) from error
+        view = memoryview(part)  # a zmq.Frame is a buffer itself (its .buffer property costs more)
+    except TypeError:
+        try:
+            view = memoryview(part.buffer)
+        except (AttributeError, TypeError) as error:
+            raise WireError(what, f"expected bytes or a zmq.Frame, got {type(part).__name__}", topic) from error
     if view.ndim != 1 or view.itemsize != 1:
         if not view.c_contiguous:
             raise WireError(what, "a message part must be one contiguous buffer", topic)
