@@ -42,7 +42,7 @@ class SonarImage:
     frame_id:        sensor frame name, as in ROS.
     intensity_scale: the intensity value that means full scale (255 for 8-bit, 1.0 for normalised floats).
     meta:            ping metadata, JSON-able: frequency_hz, sound_speed_mps, gain_percent,
-                     range_resolution_m, vertical_aperture_rad, source, provenance, ...
+                     range_resolution_m, vertical_aperture_rad, source, provenance, ... (None: a new empty dict)
     """
 
     intensity: np.ndarray
@@ -57,7 +57,7 @@ class SonarImage:
     def __init__(self, intensity: np.ndarray, ranges_m: Any, azimuths_rad: Any, stamp_ns: int = 0, seq: int = 0,
                  frame_id: str = "sonar", intensity_scale: float = 0.0, meta: dict[str, Any] | None = None) -> None:
         # Written by hand: the generated __init__ of a frozen dataclass sets each field through
-        # object.__setattr__, which took more time than all the checks below. meta=None is a new empty dict.
+        # object.__setattr__, which took more time than all the checks below.
         self.__dict__.update(intensity=intensity, ranges_m=ranges_m, azimuths_rad=azimuths_rad, stamp_ns=stamp_ns,
                              seq=seq, frame_id=frame_id, intensity_scale=intensity_scale,
                              meta={} if meta is None else meta)

@@ -196,7 +196,6 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
         raise WireError(field if reason else "frame", reason or str(error), topic) from error
 
 
-
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
     explicit = np.ascontiguousarray(values, dtype=_FLOAT64_LE).tobytes()
     recent = _SENT_AXES[name]
