@@ -36,9 +36,14 @@ PASSIVE_THREAD_POOLS = {
 }
 
 
-def main(argv: list[str]) -> int:
+def use_passive_thread_pools() -> None:
+    """PASSIVE_THREAD_POOLS in this process's environment, where not set already (before torch or cv2 loads)."""
     for name, value in PASSIVE_THREAD_POOLS.items():
         os.environ.setdefault(name, value)
+
+
+def main(argv: list[str]) -> int:
+    use_passive_thread_pools()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     spec = json.loads(Path(argv[0]).read_text())
     node_class = resolve_node_type(spec["type"])
