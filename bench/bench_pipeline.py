@@ -55,10 +55,12 @@ import zmq
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-# This process stands in for the source and receiver nodes, which run with OpenMP threads that sleep between calls
-# (runtime/process.py); its own torch (the compute-only series) must not spin on the cores after each call while
-# the next latency trip runs. Has no effect when torch was loaded before this module (bench/run.py runs others).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+from sonar_realism.runtime.process import use_passive_thread_pools  # noqa: E402  (imports neither torch nor cv2)
+
+# This process stands in for the source and receiver nodes, whose thread pools sleep between calls
+# (runtime/process.py); its own torch and OpenCV (the compute-only series) must not spin on the cores after each
+# call while the next latency trip runs. No effect when they were loaded before this module (bench/run.py).
+use_passive_thread_pools()
 
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.runtime.delivery import InputPolicy  # noqa: E402

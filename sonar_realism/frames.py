@@ -27,7 +27,7 @@ DEFAULT_INTENSITY_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535
 _INTEGER = (int, np.integer)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class SonarImage:
     """A polar sonar frame.
 
@@ -42,7 +42,7 @@ class SonarImage:
     frame_id:        sensor frame name, as in ROS.
     intensity_scale: the intensity value that means full scale (255 for 8-bit, 1.0 for normalised floats).
     meta:            ping metadata, JSON-able: frequency_hz, sound_speed_mps, gain_percent,
-                     range_resolution_m, vertical_aperture_rad, source, provenance, ...
+                     range_resolution_m, vertical_aperture_rad, source, provenance, ... (None: a new empty dict)
     """
 
     intensity: np.ndarray
@@ -54,7 +54,16 @@ class SonarImage:
     intensity_scale: float = 0.0  # 0 selects the dtype's default (DEFAULT_INTENSITY_SCALE)
     meta: dict[str, Any] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
+    def __init__(self, intensity: np.ndarray, ranges_m: Any, azimuths_rad: Any, stamp_ns: int = 0, seq: int = 0,
+                 frame_id: str = "sonar", intensity_scale: float = 0.0, meta: dict[str, Any] | None = None) -> None:
+        # Written by hand: the generated __init__ of a frozen dataclass sets each field through
+        # object.__setattr__, which took more time than all the checks below.
+        self.__dict__.update(intensity=intensity, ranges_m=ranges_m, azimuths_rad=azimuths_rad, stamp_ns=stamp_ns,
+                             seq=seq, frame_id=frame_id, intensity_scale=intensity_scale,
+                             meta={} if meta is None else meta)
+        self._check()
+
+    def _check(self) -> None:
         # Runs for every frame received or made (the wire decoder builds one per message): kept lean.
         intensity = self.intensity
         if not isinstance(intensity, np.ndarray):
@@ -72,21 +81,24 @@ class SonarImage:
         if dtype.kind == "f" and intensity is not _CHECKED_INTENSITY.get() and not all_finite(intensity):
             raise FrameError("intensity: NaN or inf in a float frame (not allowed; see SonarImage docs)")
 
-        object.__setattr__(self, "ranges_m", _axis(self.ranges_m, "ranges_m", shape[-2]))
-        object.__setattr__(self, "azimuths_rad", _axis(self.azimuths_rad, "azimuths_rad", shape[-1]))
-
-        if not isinstance(self.stamp_ns, _INTEGER) or self.stamp_ns < 0:
-            raise FrameError(f"stamp_ns: expected a non-negative int, got {self.stamp_ns!r}")
-        if not isinstance(self.seq, _INTEGER) or self.seq < 0:
-            raise FrameError(f"seq: expected a non-negative int, got {self.seq!r}")
-        object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
-        object.__setattr__(self, "seq", int(self.seq))
+        # The checked values (a float64 axis, a Python int) are what the frame keeps.
+        fields = self.__dict__
+        fields["ranges_m"] = _axis(fields["ranges_m"], "ranges_m", shape[-2])
+        fields["azimuths_rad"] = _axis(fields["azimuths_rad"], "azimuths_rad", shape[-1])
+        for name in ("stamp_ns", "seq"):
+            value = fields[name]
+            if type(value) is not int:
+                if not isinstance(value, _INTEGER):
+                    raise FrameError(f"{name}: expected a non-negative int, got {value!r}")
+                value = fields[name] = int(value)
+            if value < 0:
+                raise FrameError(f"{name}: expected a non-negative int, got {value!r}")
         if not isinstance(self.frame_id, str):
             raise FrameError(f"frame_id: expected str, got {type(self.frame_id).__name__}")
         scale = float(self.intensity_scale) or default_scale
         if not math.isfinite(scale) or scale <= 0:
             raise FrameError(f"intensity_scale: expected a positive finite number, got {self.intensity_scale}")
-        object.__setattr__(self, "intensity_scale", scale)
+        fields["intensity_scale"] = scale
         if not isinstance(self.meta, dict) or not all(map(str.__instancecheck__, self.meta)):
             raise FrameError("meta: expected a dict with str keys")
 

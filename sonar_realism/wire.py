@@ -12,6 +12,7 @@ This module does not import zmq: it works on anything that exposes the buffer pr
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -43,6 +44,7 @@ _REQUIRED_FRAME_KEYS = frozenset({"v", "type", "seq", "stamp_ns", "frame_id", "d
                                   "ranges_m", "azimuths_rad"})
 _REQUIRED_STATUS_KEYS = frozenset({"status"})
 _UNIFORM_AXIS_KEYS = frozenset({"start", "step", "count"})
+_UINT64_END = 1 << 64  # seq, stamp_ns and sent_ns are below this
 _NUMBER_TYPES = (int, float)  # exact types: msgpack decodes to nothing else, and bool must not pass as a number
 _STATUS_COUNTERS = ("seq", "frames_in", "frames_out", "dropped", "seq_gaps", "malformed")
 _STATUS_NUMBERS = ("stamp_ns", "uptime_s", "inference_ms")
@@ -104,7 +106,8 @@ class Message:
 
 def decode_message(parts: Sequence[Any]) -> Message:
     """The frame or status report in one received multipart message; WireError naming topic and field if not."""
-    if not isinstance(parts, Sequence) or len(parts) not in (2, 3):
+    # (recv_multipart gives a list: the exact type test spares the Sequence ABC check on every message)
+    if not (type(parts) is list or isinstance(parts, Sequence)) or len(parts) not in (2, 3):
         count = len(parts) if isinstance(parts, Sequence) else type(parts).__name__
         topic = _topic_for_error(parts[0]) if isinstance(parts, Sequence) and parts else None
         raise WireError("parts", f"expected 3 parts [topic, header, data] or 2 [topic, header], got {count}", topic)
@@ -112,7 +115,7 @@ def decode_message(parts: Sequence[Any]) -> Message:
     header = _unpack_header(parts[1], topic)
     kind = header.get("type")
     sent_ns = header.get("sent_ns")
-    if sent_ns is not None and not _is_uint64(sent_ns):
+    if sent_ns is not None and not (type(sent_ns) is int and 0 <= sent_ns < _UINT64_END):
         raise WireError("sent_ns", f"expected an unsigned 64-bit int (ns since the Unix epoch), got {sent_ns!r}",
                         topic)
     if kind == FRAME_TYPE:
@@ -139,21 +142,27 @@ def decode_frame(parts: Sequence[Any]) -> tuple[str, SonarImage]:
 
 
 def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
-    _require_keys(topic, header, _REQUIRED_FRAME_KEYS)
-    dtype_name = header["dtype"]
-    if not isinstance(dtype_name, str) or dtype_name not in WIRE_DTYPES:
+    # Runs once per received frame: every check is inline, and SonarImage is given values of the types it keeps.
+    try:
+        dtype_name, shape, layout = header["dtype"], header["shape"], header["layout"]
+        seq, stamp_ns, frame_id = header["seq"], header["stamp_ns"], header["frame_id"]
+        ranges, azimuths = header["ranges_m"], header["azimuths_rad"]
+    except KeyError:
+        _require_keys(topic, header, _REQUIRED_FRAME_KEYS)  # names the alphabetically first missing field
+        raise
+    dtype = WIRE_DTYPES.get(dtype_name) if type(dtype_name) is str else None
+    if dtype is None:
         raise WireError("dtype", f"unknown dtype {dtype_name!r}; supported: {', '.join(sorted(WIRE_DTYPES))}", topic)
-    dtype = WIRE_DTYPES[dtype_name]
-    shape = header["shape"]
-    if (not isinstance(shape, list) or len(shape) not in (2, 3)
-            or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in shape)):
+    if (type(shape) is not list or not 2 <= len(shape) <= 3
+            or not all(type(n) is int and n > 0 for n in shape)):
         raise WireError("shape", f"expected [n_ranges, n_beams] or [n_samples, n_ranges, n_beams] of positive "
                                  f"ints, got {shape!r}", topic)
-    if header["layout"] != LAYOUT:
-        raise WireError("layout", f"expected {LAYOUT!r}, got {header['layout']!r}", topic)
-    for name in ("seq", "stamp_ns"):
-        if not _is_uint64(header[name]):
-            raise WireError(name, f"expected an unsigned 64-bit int, got {header[name]!r}", topic)
+    if layout != LAYOUT:
+        raise WireError("layout", f"expected {LAYOUT!r}, got {layout!r}", topic)
+    if not (type(seq) is int and 0 <= seq < _UINT64_END):
+        raise WireError("seq", f"expected an unsigned 64-bit int, got {seq!r}", topic)
+    if not (type(stamp_ns) is int and 0 <= stamp_ns < _UINT64_END):
+        raise WireError("stamp_ns", f"expected an unsigned 64-bit int, got {stamp_ns!r}", topic)
     buffer = _as_buffer(data, "data", topic)
     expected = math.prod(shape) * dtype.itemsize
     if buffer.nbytes != expected:
@@ -167,39 +176,28 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
     intensity.flags.writeable = False
 
     meta = header.get("meta", {})
-    if not isinstance(meta, dict):
+    if type(meta) is not dict:
         raise WireError("meta", f"expected a map, got {type(meta).__name__}", topic)
     provenance = header.get("provenance")
     if provenance is not None:
-        if not isinstance(provenance, dict):
+        if type(provenance) is not dict:
             raise WireError("provenance", f"expected a map, got {type(provenance).__name__}", topic)
         meta = {**meta, "provenance": provenance}
     scale = header.get("intensity_scale", 0.0)
-    if not isinstance(scale, int | float) or isinstance(scale, bool):
+    if type(scale) not in _NUMBER_TYPES:
         raise WireError("intensity_scale", f"expected a number, got {scale!r}", topic)
     try:
-        return SonarImage(
-            intensity=intensity,
-            ranges_m=_decode_axis(header["ranges_m"], "ranges_m", shape[-2], topic),
-            azimuths_rad=_decode_axis(header["azimuths_rad"], "azimuths_rad", shape[-1], topic),
-            stamp_ns=header["stamp_ns"],
-            seq=header["seq"],
-            frame_id=header["frame_id"],
-            intensity_scale=scale,
-            meta=meta,
-        )
+        return SonarImage(intensity, _decode_axis(ranges, "ranges_m", shape[-2], topic),
+                          _decode_axis(azimuths, "azimuths_rad", shape[-1], topic), stamp_ns, seq, frame_id, scale,
+                          meta)
     except FrameError as error:
         # FrameError messages start with the SonarImage field at fault ("intensity: NaN or inf ...").
         field, _, reason = str(error).partition(": ")
         raise WireError(field if reason else "frame", reason or str(error), topic) from error
 
 
-def _is_uint64(value: Any) -> bool:
-    return type(value) is int and 0 <= value < 1 << 64
-
-
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
-    explicit = np.ascontiguousarray(values, dtype="<f8").tobytes()
+    explicit = np.ascontiguousarray(values, dtype=_FLOAT64_LE).tobytes()
     recent = _SENT_AXES[name]
     encoded = recent.get(explicit)
     if encoded is None:
@@ -288,6 +286,7 @@ class _RecentAxes:
         self._entries = ((key, value), *self._entries[: self._size - 1])
 
 
+_FLOAT64_LE = np.dtype("<f8")
 _AXIS_NAMES = ("ranges_m", "azimuths_rad")
 _SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
 _RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
@@ -314,14 +313,27 @@ def _check_status(status: dict, topic: str | None = None) -> dict:
 
 def _pack_header(header: dict, topic: str) -> bytes:
     try:
-        packed = msgpack.packb(header, use_bin_type=True, default=_plain_value)
+        packed = _packer().pack(header)
     except (TypeError, ValueError, OverflowError) as error:
         raise WireError("header", f"cannot encode ({error}); meta, provenance and status must be JSON-like "
                                   f"(dict, list, str, int, float, bool, None, bytes)", topic) from error
     if len(packed) > MAX_HEADER_BYTES:
+        _THREAD.packer = None  # its buffer grew to this size: let it go
         raise WireError("header", f"{len(packed)} bytes exceeds the {MAX_HEADER_BYTES}-byte limit; "
                                   f"keep large data out of meta/provenance", topic)
     return packed
+
+
+def _packer() -> msgpack.Packer:
+    """This thread's msgpack packer: making one per message costs more than packing a header. (One per thread: a
+    packer's buffer must not be shared by two messages at once; it resets itself when packing fails.)"""
+    packer = getattr(_THREAD, "packer", None)
+    if packer is None:
+        packer = _THREAD.packer = msgpack.Packer(use_bin_type=True, default=_plain_value)
+    return packer
+
+
+_THREAD = threading.local()
 
 
 def _plain_value(value: Any) -> Any:
@@ -416,7 +428,7 @@ def _decode_topic(part: Any) -> str:
     if buffer.nbytes > MAX_TOPIC_BYTES:
         raise WireError("topic", f"{buffer.nbytes} bytes exceeds the {MAX_TOPIC_BYTES}-byte limit")
     try:
-        return bytes(buffer).decode("utf-8")
+        return str(buffer, "utf-8")
     except UnicodeDecodeError as error:
         raise WireError("topic", f"not UTF-8 ({error})") from error
 
@@ -431,11 +443,13 @@ def _topic_for_error(part: Any) -> str | None:
 
 def _as_buffer(part: Any, what: str, topic: str | None) -> memoryview:
     """A flat byte view of a message part: a zmq.Frame (its .buffer), bytes, bytearray or memoryview."""
-    source = getattr(part, "buffer", part)  # zmq.Frame exposes the message memory as .buffer
     try:
-        view = memoryview(source)
-    except TypeError as error:
-        raise WireError(what, f"expected bytes or a zmq.Frame, got {type(part).__name__}", topic) from error
+        view = memoryview(part)  # a zmq.Frame is a buffer itself (its .buffer property costs more)
+    except TypeError:
+        try:
+            view = memoryview(part.buffer)
+        except (AttributeError, TypeError) as error:
+            raise WireError(what, f"expected bytes or a zmq.Frame, got {type(part).__name__}", topic) from error
     if view.ndim != 1 or view.itemsize != 1:
         if not view.c_contiguous:
             raise WireError(what, "a message part must be one contiguous buffer", topic)

@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,25 @@ def test_valid_frame_and_derived_properties():
     assert frame.intensity_scale == 255.0
     assert frame.max_range_m == pytest.approx(10 - 10 / 128)
     assert frame.fov_rad == pytest.approx(np.radians(130) * 31 / 32)
+
+
+def test_construction_keeps_checked_values_and_a_fresh_meta_per_frame():
+    first, second = make(), make()
+    assert first.meta == {} and first.meta is not second.meta  # the default is a new dict, never shared
+    frame = make(stamp_ns=np.uint64(5), seq=np.int32(3), intensity_scale=np.float32(2))
+    assert (type(frame.stamp_ns), type(frame.seq), type(frame.intensity_scale)) == (int, int, float)
+    assert frame.ranges_m.dtype == np.float64 and frame.azimuths_rad.dtype == np.float64
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        frame.seq = 4  # type: ignore[misc]
+    relabelled = frame.replace(seq=9, frame_id="other")
+    assert (relabelled.seq, relabelled.frame_id, relabelled.stamp_ns) == (9, "other", 5)
+    assert relabelled.intensity is frame.intensity and relabelled.meta is frame.meta
+    assert [f.name for f in dataclasses.fields(SonarImage)] == ["intensity", "ranges_m", "azimuths_rad", "stamp_ns",
+                                                                "seq", "frame_id", "intensity_scale", "meta"]
+    with pytest.raises(FrameError, match="seq"):
+        make(seq=True + 0.5)
+    with pytest.raises(FrameError, match="meta"):
+        make(meta={1: "x"})
 
 
 def test_sample_axis():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gc
 import itertools
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -394,3 +395,17 @@ def test_what_a_node_made_before_running_is_left_out_of_garbage_collections(cont
     run_all(src, sink)
     assert gc.get_freeze_count() > 0  # else a full collection walks the model's objects mid-stream
     gc.unfreeze()
+
+
+def test_node_processes_make_thread_pools_sleep_between_calls_unless_told_otherwise(monkeypatch, tmp_path):
+    from sonar_realism.runtime import process
+
+    for name in process.PASSIVE_THREAD_POOLS:
+        monkeypatch.setenv(name, "placeholder")  # recorded, so the test's environment comes back afterwards
+        monkeypatch.delenv(name)
+    monkeypatch.setenv("OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN", "5")  # a value already set wins
+    with pytest.raises(FileNotFoundError):
+        process.main([str(tmp_path / "missing.json")])  # the policy is set before the spec is even read
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    assert os.environ["OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER"] == "0"
+    assert os.environ["OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN"] == "5"

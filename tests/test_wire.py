@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import msgpack
 import numpy as np
@@ -278,6 +280,54 @@ def test_encoder_rejects_what_a_receiver_would_reject():
         encode_frame(make_frame(meta={"when": object()}), "t")
     with pytest.raises(WireError, match="topic"):
         encode_frame(make_frame(), "t" * 2000)
+
+
+def test_a_failed_encode_leaves_nothing_behind_for_the_next_one():
+    # The encoder keeps one msgpack packer per thread: what a failed or oversized header wrote must not leak
+    # into the next message's header.
+    frame = make_frame(meta={"gain_percent": 40.0})
+    expected = decode_frame(encode_frame(frame, "t"))[1]
+    for bad_meta in ({"when": object()}, {"blob": b"\0" * MAX_HEADER_BYTES}):
+        with pytest.raises(WireError):
+            encode_frame(make_frame(meta=bad_meta), "t")
+        got = decode_frame(encode_frame(frame, "t"))[1]
+        assert got.meta == expected.meta and got.seq == expected.seq
+
+
+def test_frames_encoded_on_several_threads_at_once_decode_to_their_own_content():
+    # numpy scalars in meta make the packer call back into Python mid-header, where another thread can run
+    # (switching threads as often as possible here).
+    frames = [make_frame(seq=seq, meta={"gains": [np.float32(seq)] * 50, "who": "x" * seq}) for seq in range(8)]
+
+    def round_trips(frame: SonarImage) -> bool:
+        for _ in range(200):
+            got = decode_frame(encode_frame(frame, "t"))[1]
+            if got.seq != frame.seq or got.meta != frame.meta or not np.array_equal(got.intensity, frame.intensity):
+                return False
+        return True
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        with ThreadPoolExecutor(max_workers=len(frames)) as pool:
+            assert all(pool.map(round_trips, frames))
+    finally:
+        sys.setswitchinterval(interval)
+
+
+def test_parts_are_read_through_the_buffer_protocol_or_a_buffer_attribute():
+    frame = make_frame()
+    topic, header, data = encode_frame(frame, "t")
+
+    class BufferHolder:  # an object that is no buffer itself but exposes one, as zmq.Frame's .buffer does
+        def __init__(self, payload: bytes) -> None:
+            self.buffer = memoryview(payload)
+
+    for parts in ([topic, header, bytes(data)], [bytearray(topic), memoryview(header), bytearray(data)],
+                  [BufferHolder(topic), BufferHolder(header), BufferHolder(bytes(data))]):
+        assert np.array_equal(decode_frame(parts)[1].intensity, frame.intensity)
+    with pytest.raises(WireError, match="expected bytes or a zmq.Frame"):
+        decode_frame([topic, header, 42])
 
 
 def test_a_hand_written_header_with_list_geometry_decodes():

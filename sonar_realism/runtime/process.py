@@ -2,7 +2,7 @@
 
 SIGINT and SIGTERM ask the node to stop: it finishes the frame at hand, sends end of stream and exits 0.
 The node also stops by itself when its launcher disappears (Wiring.exit_with_parent), so a killed
-launcher leaves no orphans behind. OMP_WAIT_POLICY defaults to PASSIVE in node processes (docs/nodes.md).
+launcher leaves no orphans behind. Thread pools wait passively in node processes (docs/nodes.md).
 """
 
 from __future__ import annotations
@@ -25,10 +25,25 @@ def node_spec(name: str, type_name: str, params: dict[str, Any], wiring: Wiring)
     return json.dumps({"name": name, "type": type_name, "params": params, "wiring": wiring.to_json()})
 
 
+# Thread pools that otherwise spin after every call, taking the cores that the sockets and the other nodes need:
+# torch's OpenMP workers, and OpenCV's own pool (cv2.remap/GaussianBlur in the translator), whose workers call
+# sched_yield ~2000 times before they sleep. Read when the library loads: a node imports torch and cv2 only in
+# configure(), after main() has set these (a value already in the environment wins).
+PASSIVE_THREAD_POOLS = {
+    "OMP_WAIT_POLICY": "PASSIVE",
+    "OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER": "0",
+    "OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN": "0",
+}
+
+
+def use_passive_thread_pools() -> None:
+    """PASSIVE_THREAD_POOLS in this process's environment, where not set already (before torch or cv2 loads)."""
+    for name, value in PASSIVE_THREAD_POOLS.items():
+        os.environ.setdefault(name, value)
+
+
 def main(argv: list[str]) -> int:
-    # Before torch loads (a node imports it in configure()): its OpenMP workers otherwise spin for a while after
-    # every model call, taking the cores that the sockets and the other nodes need.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    use_passive_thread_pools()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     spec = json.loads(Path(argv[0]).read_text())
     node_class = resolve_node_type(spec["type"])
