@@ -492,7 +492,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
         f"pitch sd {m.pitch_sd_deg.value:.2f} deg")
 
-    # intervals of the effect parameters: short local refits on bootstrap resamples of the recording's frames
+    # intervals of the effect parameters: refits on bootstrap resamples of the recording, each against fresh sim frames
     fitted = _effect_intervals(calibration, chain, images, config, rng, log)
     seabed_intervals = _seabed_intervals(real_table, look, real_seabed, rng, b)
     calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
@@ -550,17 +550,19 @@ def _seabed_intervals(stats: np.ndarray, look: SeabedLook, real: SeabedStats, rn
     """The matched seabed terms scale with the recording's statistics (`stats`: `_seabed_table`): their intervals
     are the statistics' bootstrap intervals carried through that proportion."""
 
-    def carried(column: int, value: float, reference: float, additive: bool = False) -> Estimate:
-        e = _estimate(stats[:, column], np.median, rng, resamples)
+    columns = [f.name for f in dataclasses.fields(SeabedStats)]  # the table's columns
+
+    def carried(statistic: str, value: float, additive: bool = False) -> Estimate:
+        e = _estimate(stats[:, columns.index(statistic)], np.median, rng, resamples)
+        reference = getattr(real, statistic)
         if additive:
             return Estimate(value, max(0.0, value + e.low - reference), min(0.9, value + e.high - reference))
         ratio = value / max(reference, 1e-9)
         return Estimate(value, e.low * ratio, e.high * ratio)
 
-    return SeabedTerms(carried(0, look.patch_contrast, real.contrast),
-                       carried(1, look.patch_scale_m, real.scale_rows),
-                       carried(2, look.patch_width_deg, real.width_beams),
-                       carried(3, look.dark_fraction, real.dark_fraction, additive=True), _fixed(look.roughness_m))
+    return SeabedTerms(carried("contrast", look.patch_contrast), carried("scale_rows", look.patch_scale_m),
+                       carried("width_beams", look.patch_width_deg),
+                       carried("dark_fraction", look.dark_fraction, additive=True), _fixed(look.roughness_m))
 
 
 # ----------------------------------------------------------------------------------------------- CLI
