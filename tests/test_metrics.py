@@ -141,6 +141,19 @@ def test_two_sample_test_near_chance_for_a_perfect_translator_and_high_for_raw_s
     assert separable.accuracy > 0.9 and separable.auc > 0.9
 
 
+def test_two_sample_scores_each_fold_on_its_own_so_a_shifted_fold_does_not_collapse_to_chance():
+    from sonar_realism.evaluate.two_sample import _FoldScores, _held_out_result
+
+    # Separated within each fold, but the second fold's scores all sit below 0.5 (a held-out half the classifier
+    # was not calibrated on): a fixed 0.5 threshold would call that whole fold generated, pooled AUC would mix them.
+    shifted = [_FoldScores(np.array([0.9, 0.8, 0.85]), np.array([0.6, 0.55])),
+               _FoldScores(np.array([0.3, 0.35]), np.array([0.1, 0.2, 0.15]))]
+    result = _held_out_result(shifted)
+    assert result.accuracy == 1.0 and result.auc == 1.0 and (result.n_real, result.n_generated) == (5, 5)
+    mixed = _held_out_result([_FoldScores(np.array([0.9, 0.1]), np.array([0.5, 0.6]))])
+    assert mixed.accuracy == 0.5 and mixed.auc == 0.5
+
+
 def test_family_gaps_from_the_shared_statistics_are_zero_for_identical_sets():
     from sonar_realism.evaluate.suite import family_gaps
 

@@ -3,8 +3,14 @@
 A new RealismCNN is trained on part of each set and tested on the rest (contiguous folds, because
 consecutive sonar frames are near duplicates and an interleaved split would test on the training set's
 neighbours). Held-out balanced accuracy and ROC AUC near 0.5 mean the sets are indistinguishable; near 1
-they are trivially separable. Unlike the paper's fixed real-vs-raw-sim CNN, this classifier is trained on
-the very generator it judges, so it cannot be fooled by moving away from the cues raw simulation shows.
+they are trivially separable. Unlike the paper's fixed real-vs-raw-sim CNN, this classifier is trained on the
+very generator it judges, so it cannot be fooled by moving away from the cues raw simulation shows.
+
+Both are scored within each fold and then pooled. The held-out half of a recording is not the half the
+classifier saw, so its scores come out shifted as a whole: a fixed 0.5 threshold then calls every frame of a
+fold one class (accuracy exactly 0.5 on well-separated scores), and pooling raw scores across folds mixes two
+calibrations. So each fold is thresholded at its own known class proportion (the top n_real scores are called
+real: label-free, chance stays 0.5), and the AUC counts only pairs within a fold.
 """
 
 from __future__ import annotations
@@ -41,12 +47,31 @@ def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float:
     return float((greater + 0.5 * ties) / (pos.size * neg.size))
 
 
-def _held_out_result(held_scores: list[np.ndarray], held_labels: list[np.ndarray]) -> TwoSampleResult:
-    scores, labels = np.concatenate(held_scores), np.concatenate(held_labels)
-    predicted_real = scores > 0.5
-    balanced = 0.5 * (predicted_real[labels].mean() + (~predicted_real[~labels]).mean())
-    return TwoSampleResult(accuracy=float(balanced), auc=roc_auc(scores, labels), n_real=int(labels.sum()),
-                           n_generated=int((~labels).sum()))
+@dataclass(frozen=True)
+class _FoldScores:
+    real: np.ndarray  # held-out "real" probabilities of the fold's real frames
+    generated: np.ndarray  # and of its generated frames
+
+
+def _held_out_result(folds: list[_FoldScores]) -> TwoSampleResult:
+    """Balanced accuracy at each fold's class-proportion threshold and within-fold AUC, pooled over frames."""
+    hits_real = hits_generated = 0
+    ordered_pairs, pairs = 0.0, 0
+    for fold in folds:
+        scores = np.concatenate([fold.real, fold.generated])
+        called_real = np.zeros(scores.size, bool)
+        called_real[np.argsort(-scores, kind="stable")[:fold.real.size]] = True
+        hits_real += int(called_real[:fold.real.size].sum())
+        hits_generated += int((~called_real[fold.real.size:]).sum())
+        labels = np.arange(scores.size) < fold.real.size
+        fold_pairs = fold.real.size * fold.generated.size
+        ordered_pairs += roc_auc(scores, labels) * fold_pairs
+        pairs += fold_pairs
+    n_real = sum(fold.real.size for fold in folds)
+    n_generated = sum(fold.generated.size for fold in folds)
+    balanced = 0.5 * (hits_real / n_real + hits_generated / n_generated)
+    return TwoSampleResult(accuracy=float(balanced), auc=ordered_pairs / pairs, n_real=n_real,
+                           n_generated=n_generated)
 
 
 def _folds(n: int, k: int) -> list[np.ndarray]:
@@ -61,14 +86,13 @@ def classifier_two_sample_test(real: np.ndarray, generated: np.ndarray, folds: i
     if len(real) < folds or len(generated) < folds:
         raise ConfigError(f"two-sample test: need >= {folds} images per set, got {len(real)} and {len(generated)}")
     config = replace(config, grid=tuple(real.shape[1:]), seed=seed)
-    held_scores, held_labels = [], []
+    scored = []
     for real_test, gen_test in zip(_folds(len(real), folds), _folds(len(generated), folds), strict=True):
         real_train = np.delete(real, real_test, axis=0)
         gen_train = np.delete(generated, gen_test, axis=0)
         model = train_classifier(real_train, gen_train, config)
-        held_scores += [realism_scores(model, real[real_test]), realism_scores(model, generated[gen_test])]
-        held_labels += [np.ones(len(real_test), bool), np.zeros(len(gen_test), bool)]
-    return _held_out_result(held_scores, held_labels)
+        scored.append(_FoldScores(realism_scores(model, real[real_test]), realism_scores(model, generated[gen_test])))
+    return _held_out_result(scored)
 
 
 @dataclass(frozen=True)
@@ -167,13 +191,12 @@ def texture_two_sample_test(real: list[np.ndarray], generated: list[np.ndarray],
                           f"{len(generated)}")
     real_patches = texture_patches(real, config, config.seed)
     generated_patches = texture_patches(generated, config, config.seed + 1)
-    held_scores, held_labels = [], []
+    scored = []
     for real_test, gen_test in zip(_folds(len(real), config.folds), _folds(len(generated), config.folds),
                                    strict=True):
         flat = (-1, config.patch, config.patch)
         model = _train_patch_classifier(np.delete(real_patches, real_test, axis=0).reshape(flat),
                                         np.delete(generated_patches, gen_test, axis=0).reshape(flat), config)
-        held_scores += [_frame_scores(model, real_patches[real_test]),
-                        _frame_scores(model, generated_patches[gen_test])]
-        held_labels += [np.ones(len(real_test), bool), np.zeros(len(gen_test), bool)]
-    return _held_out_result(held_scores, held_labels)
+        scored.append(_FoldScores(_frame_scores(model, real_patches[real_test]),
+                                  _frame_scores(model, generated_patches[gen_test])))
+    return _held_out_result(scored)
