@@ -1,5 +1,6 @@
 """The fitted speckle layer: it recovers a known marginal and grain, samples differ, and it travels in checkpoints."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -7,7 +8,7 @@ import torch
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.texture import grain
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
-from sonar_realism.models.speckle import SpeckleField
+from sonar_realism.models.speckle import GRAIN_GROUPS, LEVEL_BINS, SpeckleField, _group_lag1
 from sonar_realism.models.speckle_fit import EXPORT_LEVELS, fit_speckle
 
 
@@ -44,6 +45,39 @@ def test_fit_then_sample_reproduces_the_marginal_and_the_anisotropic_grain():
     ratio_sample = np.concatenate([(s / ramp).ravel() for s in samples])
     contrast = lambda x: x.std() / x.mean()  # noqa: E731
     assert contrast(ratio_sample) == pytest.approx(contrast(ratio_real), rel=0.15)
+
+
+def smooth_8_bit_frames(n, seed):
+    """Frames over a 60:1 level ramp with smooth log-normal texture (correlated over ~2 bins), exported 8-bit:
+    the dark rows tie in long runs, as a real sensor's dark water column does."""
+    rng = np.random.default_rng(seed)
+    level = np.geomspace(0.01, 0.6, 128)[:, None] * np.ones((1, 96))
+    frames = []
+    for _ in range(n):
+        field = cv2.GaussianBlur(rng.standard_normal((128, 96)).astype(np.float32), (0, 0), 2.0)
+        image = level * np.exp(0.5 * field / field.std())
+        frames.append(np.round(image / image.max() * EXPORT_LEVELS) / EXPORT_LEVELS)
+    return frames
+
+
+def test_match_grain_brings_each_short_level_groups_neighbour_correlation_to_the_frames():
+    frames = smooth_8_bit_frames(6, seed=0)
+    means = [cv2.GaussianBlur(frame.astype(np.float32), (0, 0), 4.0) for frame in frames]
+    field = fitted_on(frames, means)
+    groups = [(field.level_bins(torch.from_numpy(mean)) // (LEVEL_BINS // GRAIN_GROUPS)).numpy() for mean in means]
+    real = _group_lag1(frames, groups)
+
+    def sampled_lag1(seed):
+        generator = torch.Generator().manual_seed(seed)
+        return _group_lag1([field.sample(mean[None], generator)[0] for mean in means], groups)
+
+    before, before_other_draw = sampled_lag1(0), sampled_lag1(3)
+    widths = field.match_grain(frames, means, seed=0)
+    short = before < real - 0.02  # the copula's kernel falls short (ties spread at random, clipped spectrum)
+    assert short.any()
+    np.testing.assert_allclose(sampled_lag1(0)[short], real[short], atol=0.01)
+    assert (np.abs(sampled_lag1(3) - real) < np.abs(before_other_draw - real))[short].all()
+    assert (widths[short] > 0).all() and (widths[before >= real] == 0).all()  # never sharpened, never widened past
 
 
 def test_samples_are_max_scaled_8_bit_and_differ_between_draws():

@@ -417,7 +417,8 @@ def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: s
                       seed: int = 0) -> None:
     """Fit the model's speckle layer (models/speckle.py) on real frames at their own resolution, around one
     decoded draw of each at TEXTURE_FIT_TEMPERATURE (the mean field a translation multiplies): the texture the
-    decoder cannot express. Uses TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
+    decoder cannot express, its grain matched to the frames' (`SpeckleField.match_grain`). Uses
+    TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
     assert model.texture is not None
     picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
     model.eval()
@@ -429,6 +430,7 @@ def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: s
         means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
         images.append(normalise(frame, "frame_max"))
     model.texture.set_fit(*fit_speckle(images, means, seed=seed))
+    model.texture.match_grain(images, means, seed=seed)
 
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,

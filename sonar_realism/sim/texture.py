@@ -6,9 +6,10 @@ stripes, the noise floor and the export's quantisation, and a two-sample test on
 tells the two apart at once. So `calibrate` also fits the recording's texture with the translator's speckle
 model (models/speckle.py): the ratio of each real frame to its local mean level (a Gaussian blur of one cell
 of the 128 x 128 model grid, the level the cDFCVAE learns), as a level-binned quantile table plus a grain
-kernel. `simulate --calibration` then draws the simulated frame's texture from that fit in place of the
-`speckle` effect, on the output level (after the output mapping): the simulated mean level, the sensor's
-speckle on top, exported as the recording was.
+kernel per level group, matched to the recording's neighbour correlations (`SpeckleField.match_grain`).
+`simulate --calibration` then draws the simulated frame's texture from that fit in place of the `speckle`
+effect, on the output level (after the output mapping): the simulated mean level, the sensor's speckle on top,
+exported as the recording was.
 
 A real sensor also varies its gain from range sample to range sample, the same across every beam of a ping
 (on the Oculus set about 2.7 % rms, with bright lines in its upper tail: several per frame). The fit keeps the
@@ -133,10 +134,16 @@ def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     if not usable:
         raise ConfigError(f"texture: no frame is at least {TILE} x {TILE} samples; cannot fit the sensor's texture")
     chosen = [usable[i] for i in np.linspace(0, len(usable) - 1, min(FIT_FRAMES, len(usable))).astype(int)]
-    edges, table, kernel = fit_speckle([image.astype(np.float32) for image in chosen],
-                                       [local_mean(image) for image in chosen], seed=seed)
-    texture = SensorTexture(_rounded(edges), _rounded(np.maximum.accumulate(table, axis=1)), _rounded(kernel),
-                            fit_row_gain(chosen))
+    from sonar_realism.models.speckle import SpeckleField
+
+    images = [image.astype(np.float32) for image in chosen]
+    means = [local_mean(image) for image in chosen]
+    edges, table, kernel = fit_speckle(images, means, seed=seed)
+    speckle = SpeckleField()
+    speckle.set_fit(edges, np.maximum.accumulate(table, axis=1), kernel)
+    speckle.match_grain(images, means, seed)
+    texture = SensorTexture(_rounded(speckle.level_edges.numpy()), _rounded(speckle.ratio_quantiles.numpy()),
+                            _rounded(speckle.kernel.numpy()), fit_row_gain(chosen))
     texture.validate()
     return texture
 
