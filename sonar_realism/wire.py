@@ -22,7 +22,7 @@ import msgpack
 import numpy as np
 
 from sonar_realism.errors import FrameError, WireError
-from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, checked_axis
+from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, checked_axis, is_checked_axis
 
 WIRE_VERSION = 1
 FRAME_TYPE = "frame"
@@ -197,12 +197,19 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
 
 
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
+    # A checked axis (frames.checked_axis: read-only, the library's own), which every decoded frame carries, is
+    # known by identity: a node forwarding a stream's geometry neither copies nor compares its bytes.
+    known, known_form = _SENT_CHECKED_AXIS[name]
+    if known is values:
+        return known_form
     explicit = np.ascontiguousarray(values, dtype=_FLOAT64_LE).tobytes()
     recent = _SENT_AXES[name]
     encoded = recent.get(explicit)
     if encoded is None:
         encoded = _uniform_form(values) or explicit
         recent.put(explicit, encoded)
+    if is_checked_axis(values, name):
+        _SENT_CHECKED_AXIS[name] = (values, encoded)  # one tuple, replaced whole: safe across threads
     return encoded
 
 
@@ -289,6 +296,9 @@ class _RecentAxes:
 _FLOAT64_LE = np.dtype("<f8")
 _AXIS_NAMES = ("ranges_m", "azimuths_rad")
 _SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
+# The last checked axis sent per name and its wire form (holding the array keeps its id from being reused).
+_SENT_CHECKED_AXIS: dict[str, tuple[np.ndarray | None, dict | bytes | None]] = {name: (None, None)
+                                                                                for name in _AXIS_NAMES}
 _RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
 
 
@@ -360,20 +370,11 @@ def _unpack_header(part: Any, topic: str) -> dict:
     if buffer.nbytes == 0:
         raise WireError("header", "empty part; expected a msgpack map", topic)
     try:
-        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True,
-                                 object_hook=_reject_timestamps_in_map, list_hook=_reject_timestamps_in_list)
-    except _ExtensionFound as found:
-        hint = " (the timestamp extension: send ns since the epoch as an int)" if found.code == -1 else ""
-        raise WireError("header", f"msgpack extension type {found.code}{hint} is not part of the wire format",
-                        topic) from None
+        # max_ext_len=0: msgpack refuses every extension with data in C, before it would decode the timestamp
+        # extension (-1) itself; the hooks below, which name the type, run only for a header that failed.
+        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True, max_ext_len=0)
     except Exception as error:  # msgpack raises many types for corrupt input; all mean "not our header"
-        name = type(error).__name__
-        reason = _MSGPACK_REASONS.get(name, "")
-        detail = str(error)
-        text = "; ".join(t for t in (reason, detail) if t) or name
-        raise WireError("header", f"not valid msgpack ({name}: {text})", topic) from error
-    if isinstance(header, msgpack.Timestamp):
-        raise WireError("header", "msgpack extension type -1 (timestamp) is not part of the wire format", topic)
+        raise _header_error(buffer, topic, error) from error
     if not isinstance(header, dict):
         raise WireError("header", f"expected a msgpack map, got {type(header).__name__}", topic)
     version = header.get("v")
@@ -381,6 +382,26 @@ def _unpack_header(part: Any, topic: str) -> dict:
         raise WireError("v", f"wire version {version!r} is not supported (this reader speaks version "
                              f"{WIRE_VERSION}); upgrade the older side", topic)
     return header
+
+
+def _header_error(buffer: memoryview, topic: str, error: Exception) -> WireError:
+    """The WireError for a header msgpack refused: the extension type it holds, or why it is not msgpack.
+    (Unpacks again with extensions decoded and Python hooks, which name the type: only for a rejected message.)"""
+    try:
+        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True,
+                                 object_hook=_reject_timestamps_in_map, list_hook=_reject_timestamps_in_list)
+    except _ExtensionFound as found:
+        hint = " (the timestamp extension: send ns since the epoch as an int)" if found.code == -1 else ""
+        return WireError("header", f"msgpack extension type {found.code}{hint} is not part of the wire format", topic)
+    except Exception as second:
+        error = second
+    else:
+        if isinstance(header, msgpack.Timestamp):
+            return WireError("header", "msgpack extension type -1 (timestamp) is not part of the wire format", topic)
+    name = type(error).__name__
+    reason = _MSGPACK_REASONS.get(name, "")
+    text = "; ".join(t for t in (reason, str(error)) if t) or name
+    return WireError("header", f"not valid msgpack ({name}: {text})", topic)
 
 
 class _ExtensionFound(Exception):

@@ -240,6 +240,27 @@ def test_extension_types_are_rejected_wherever_they_sit(meta):
     assert (caught.value.topic, caught.value.field) == ("t", "header")
 
 
+# Every encoding msgpack decodes as a timestamp (-1): fixext 4/8 and ext 8/16/32 with 4, 8 or 12 data bytes,
+# the long forms being what a publisher's library may write. `seq` is the last key, so the header's map is complete.
+_TIMESTAMPS = {"fixext4": b"\xd6\xff" + bytes(4), "fixext8": b"\xd7\xff" + bytes(8),
+               "ext8-12": b"\xc7\x0c\xff" + bytes(12), "ext16-8": b"\xc8\x00\x08\xff" + bytes(8),
+               "ext32-4": b"\xc9\x00\x00\x00\x04\xff" + bytes(4)}
+
+
+@pytest.mark.parametrize("encoded", _TIMESTAMPS.values(), ids=_TIMESTAMPS)
+@pytest.mark.parametrize("where", ["value", "in-list", "whole-header"])
+def test_every_timestamp_encoding_is_rejected_naming_the_extension(encoded, where):
+    frame_header = msgpack.packb({k: v for k, v in msgpack.unpackb(header_of(FRAME)).items() if k != "seq"})
+    if where == "whole-header":
+        header = encoded
+    else:
+        value = b"\x91" + encoded if where == "in-list" else encoded
+        header = bytes([frame_header[0] + 1]) + frame_header[1:] + b"\xa3seq" + value  # one more map entry
+    with pytest.raises(WireError, match="extension type -1") as caught:
+        decode_message([b"t", header, DATA])
+    assert (caught.value.topic, caught.value.field) == ("t", "header")
+
+
 @pytest.mark.parametrize("header, reason", [
     (b"", "empty part"),
     (b"\xc1", "starts no msgpack value"),
