@@ -431,6 +431,19 @@ def test_a_changed_axis_is_checked_again_and_a_bad_one_rejected_with_its_field(f
     np.testing.assert_array_equal(again.azimuths_rad, good.azimuths_rad)
 
 
+def test_forwarded_geometry_goes_out_as_it_came_in():
+    # Received frames carry checked axes, which encode_frame knows by identity: two streams forwarded in turn
+    # (each axis checked once, then met again) must each go out with their own geometry.
+    streams = [make_frame(seq=1), make_frame(seq=2).replace(ranges_m=uniform_ranges(24, 7.0),
+                                                            azimuths_rad=np.linspace(-0.5, 0.5, 16) ** 3)]
+    received = [decode_frame(to_bytes(encode_frame(frame, "t")))[1] for frame in streams]
+    for _ in range(2):
+        for frame, original in zip(received, streams, strict=True):
+            _, forwarded = decode_frame(to_bytes(encode_frame(frame, "t")))
+            np.testing.assert_array_equal(forwarded.azimuths_rad, original.azimuths_rad)
+            np.testing.assert_allclose(forwarded.ranges_m, original.ranges_m, rtol=0, atol=1e-12)
+
+
 def test_bearings_that_change_every_frame_are_decoded_exactly():
     for seq in range(20):  # more distinct axes than are remembered
         bearings = np.sort(np.random.default_rng(seq).uniform(-1.0, 1.0, 16))
