@@ -94,7 +94,7 @@ def encode_status(topic: str, status: dict) -> list:
     return [topic_bytes, _pack_header(header, topic)]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Message:
     """One received message: a frame (`body` is a SonarImage) or a status report (`body` is its status map)."""
 
@@ -102,6 +102,11 @@ class Message:
     kind: str                 # FRAME_TYPE or STATUS_TYPE
     body: SonarImage | dict
     sent_ns: int | None = None  # the publisher's wall-clock send time, when it sent one
+
+    def __init__(self, topic: str, kind: str, body: SonarImage | dict, sent_ns: int | None = None) -> None:
+        # By hand, as SonarImage's: one per received message, and the generated frozen __init__ (a setattr per
+        # field through object.__setattr__) cost more than the rest of a status message's decode.
+        self.__dict__.update(topic=topic, kind=kind, body=body, sent_ns=sent_ns)
 
 
 def decode_message(parts: Sequence[Any]) -> Message:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -19,6 +20,7 @@ from sonar_realism.wire import (
     FRAME_TYPE,
     MAX_HEADER_BYTES,
     STATUS_TYPE,
+    Message,
     decode_frame,
     decode_message,
     encode_frame,
@@ -151,6 +153,9 @@ def test_status_round_trip_over_a_socket(pair):
     message = decode_message(receiver.recv_multipart(copy=False))
     assert (message.topic, message.kind, message.body) == ("translator/status", STATUS_TYPE, status)
     assert message.sent_ns > 0
+    assert message == Message("translator/status", STATUS_TYPE, status, message.sent_ns)  # a value, by its fields
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        message.topic = "other"
     with pytest.raises(WireError, match="expected a frame message"):
         decode_frame(encode_status("translator/status", status))
 
