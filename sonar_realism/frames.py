@@ -202,14 +202,10 @@ _CHECKED_AXES_LOCK = threading.Lock()
 _MAX_CHECKED_AXES = 64  # at most 64 x 64 KiB (an 8192-value axis, the largest a header can carry) held
 
 
-def is_checked_axis(values: Any, name: str) -> bool:
-    """Whether `values` is an array checked_axis() made for `name` (read-only, this module's own)."""
-    return _CHECKED_AXES.get((id(values), name)) is values
-
-
 def _axis(values: Any, name: str, expected_len: int) -> np.ndarray:
-    if is_checked_axis(values, name) and values.shape[0] == expected_len:
-        return values
+    checked = _CHECKED_AXES.get((id(values), name))
+    if checked is values and checked.shape[0] == expected_len:
+        return checked
     return _check_axis(values, name, expected_len)
 
 

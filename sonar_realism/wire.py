@@ -22,7 +22,7 @@ import msgpack
 import numpy as np
 
 from sonar_realism.errors import FrameError, WireError
-from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, checked_axis, is_checked_axis
+from sonar_realism.frames import SUPPORTED_DTYPES, SonarImage, checked_axis
 
 WIRE_VERSION = 1
 FRAME_TYPE = "frame"
@@ -202,19 +202,15 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
 
 
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
-    # A checked axis (frames.checked_axis: read-only, the library's own), which every decoded frame carries, is
-    # known by identity: a node forwarding a stream's geometry neither copies nor compares its bytes.
-    known, known_form = _SENT_CHECKED_AXIS[name]
-    if known is values:
-        return known_form
+    forwarded = _FORWARDED_AXES[name].get(values)
+    if forwarded is not None:
+        return forwarded
     explicit = np.ascontiguousarray(values, dtype=_FLOAT64_LE).tobytes()
     recent = _SENT_AXES[name]
     encoded = recent.get(explicit)
     if encoded is None:
         encoded = _uniform_form(values) or explicit
         recent.put(explicit, encoded)
-    if is_checked_axis(values, name):
-        _SENT_CHECKED_AXIS[name] = (values, encoded)  # one tuple, replaced whole: safe across threads
     return encoded
 
 
@@ -274,6 +270,9 @@ def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
                 values = key[0] + key[1] * np.arange(count)
         axis = checked_axis(values, name, count)  # FrameError names the field; the caller makes it a WireError
         recent.put(key, axis)
+        # How encode_frame sends this very array (read-only, shared by the stream's frames) when a node forwards
+        # or relabels a received frame: found by identity, so its bytes are neither copied nor compared again.
+        _FORWARDED_AXES[name].put(axis, _uniform_form(axis) or axis.astype(_FLOAT64_LE).tobytes())
     return axis
 
 
@@ -298,13 +297,29 @@ class _RecentAxes:
         self._entries = ((key, value), *self._entries[: self._size - 1])
 
 
+class _ForwardedAxes:
+    """The wire form of the last few axes decode_frame checked, by the arrays' identity (holding them keeps their
+    ids from being reused). Safe across threads as _RecentAxes."""
+
+    def __init__(self, size: int = 8) -> None:
+        self._size = size
+        self._entries: tuple[tuple[np.ndarray, dict | bytes], ...] = ()
+
+    def get(self, axis: np.ndarray) -> dict | bytes | None:
+        for known, form in self._entries:
+            if known is axis:
+                return form
+        return None
+
+    def put(self, axis: np.ndarray, form: dict | bytes) -> None:
+        self._entries = ((axis, form), *self._entries[: self._size - 1])
+
+
 _FLOAT64_LE = np.dtype("<f8")
 _AXIS_NAMES = ("ranges_m", "azimuths_rad")
 _SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
-# The last checked axis sent per name and its wire form (holding the array keeps its id from being reused).
-_SENT_CHECKED_AXIS: dict[str, tuple[np.ndarray | None, dict | bytes | None]] = {name: (None, None)
-                                                                                for name in _AXIS_NAMES}
 _RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
+_FORWARDED_AXES = {name: _ForwardedAxes() for name in _AXIS_NAMES}  # checked axis -> the form encode_frame sends
 
 
 def _check_status(status: dict, topic: str | None = None) -> dict:
