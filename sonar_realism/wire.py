@@ -202,9 +202,9 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
 
 
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
-    forwarded = _FORWARDED_AXES[name].get(values)
+    forwarded = _FORWARDED_AXES.get(id(values))  # an id there is that array's: it is held, so alive and unique
     if forwarded is not None:
-        return forwarded
+        return forwarded[1]
     explicit = np.ascontiguousarray(values, dtype=_FLOAT64_LE).tobytes()
     recent = _SENT_AXES[name]
     encoded = recent.get(explicit)
@@ -272,7 +272,7 @@ def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
         recent.put(key, axis)
         # How encode_frame sends this very array (read-only, shared by the stream's frames) when a node forwards
         # or relabels a received frame: found by identity, so its bytes are neither copied nor compared again.
-        _FORWARDED_AXES[name].put(axis, _uniform_form(axis) or axis.astype(_FLOAT64_LE).tobytes())
+        _remember_forwarded(axis, _uniform_form(axis) or axis.astype(_FLOAT64_LE).tobytes())
     return axis
 
 
@@ -297,29 +297,22 @@ class _RecentAxes:
         self._entries = ((key, value), *self._entries[: self._size - 1])
 
 
-class _ForwardedAxes:
-    """The wire form of the last few axes decode_frame checked, by the arrays' identity (holding them keeps their
-    ids from being reused). Safe across threads as _RecentAxes."""
-
-    def __init__(self, size: int = 8) -> None:
-        self._size = size
-        self._entries: tuple[tuple[np.ndarray, dict | bytes], ...] = ()
-
-    def get(self, axis: np.ndarray) -> dict | bytes | None:
-        for known, form in self._entries:
-            if known is axis:
-                return form
-        return None
-
-    def put(self, axis: np.ndarray, form: dict | bytes) -> None:
-        self._entries = ((axis, form), *self._entries[: self._size - 1])
-
-
 _FLOAT64_LE = np.dtype("<f8")
 _AXIS_NAMES = ("ranges_m", "azimuths_rad")
 _SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
 _RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
-_FORWARDED_AXES = {name: _ForwardedAxes() for name in _AXIS_NAMES}  # checked axis -> the form encode_frame sends
+# id(axis) -> (axis, the form encode_frame sends) for the last axes decode_frame checked; holding each array keeps
+# its id from being reused. Looked up without a lock (one dict.get); changed under the lock, only for new geometry.
+_FORWARDED_AXES: dict[int, tuple[np.ndarray, dict | bytes]] = {}
+_FORWARDED_AXES_LOCK = threading.Lock()
+_MAX_FORWARDED_AXES = 16
+
+
+def _remember_forwarded(axis: np.ndarray, form: dict | bytes) -> None:
+    with _FORWARDED_AXES_LOCK:
+        if len(_FORWARDED_AXES) >= _MAX_FORWARDED_AXES:
+            del _FORWARDED_AXES[next(iter(_FORWARDED_AXES))]  # the oldest
+        _FORWARDED_AXES[id(axis)] = (axis, form)
 
 
 def _check_status(status: dict, topic: str | None = None) -> dict:
