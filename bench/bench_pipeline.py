@@ -89,7 +89,7 @@ RECV_TIMEOUT_S = 120.0   # model load in a fresh process plus one frame on a cro
 
 # ---- the node under test (runs in the translator process) ----------------------------------------------
 
-class _ComputeStampingStage:
+class ComputeStampingStage:
     """Wraps the node's TranslationStage: writes the model time of the call, and when the call started on the
     wall clock (which all processes of a host share), into each output's provenance.
 
@@ -117,7 +117,7 @@ class TimedTranslatorNode(TranslatorNode):
 
     def configure(self) -> None:
         super().configure()
-        self.stage = _ComputeStampingStage(self.stage)
+        self.stage = ComputeStampingStage(self.stage)
 
 
 # ---- frames ------------------------------------------------------------------------------------------------
@@ -174,7 +174,8 @@ class TranslatorProcess:
             return "(no log)"
 
 
-def start_translator(context: zmq.Context, transport: str, n: int, folder: Path, device: str) -> TranslatorProcess:
+def start_translator(context: zmq.Context, transport: str, n: int, folder: Path, device: str,
+                     node_type: str = "bench_pipeline:TimedTranslatorNode") -> TranslatorProcess:
     name = f"translator-{transport}-n{n}"
     source = context.socket(zmq.PUSH)
     source.linger = 0
@@ -189,7 +190,7 @@ def start_translator(context: zmq.Context, transport: str, n: int, folder: Path,
     )
     params = {"n": n, "seed": 0, "batch": 1, "device": device}
     spec_path = folder / f"{name}.json"
-    spec_path.write_text(node_spec(name, "bench_pipeline:TimedTranslatorNode", params, wiring))
+    spec_path.write_text(node_spec(name, node_type, params, wiring))
     sink = context.socket(zmq.PULL)
     sink.linger = 0
     sink.connect(output_push)  # zmq retries until the node has bound it

@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["oculus", "wire", "geometry", "sim", "model", "pipeline", "diagnose", "diagnose_heldout", "soak"]
-ON_REQUEST = {"soak", "diagnose_heldout"}  # minutes long: run by name only
+ORDER = ["oculus", "wire", "geometry", "sim", "model", "pipeline", "hop", "diagnose", "diagnose_heldout", "soak"]
+ON_REQUEST = {"soak", "diagnose_heldout", "hop"}  # minutes long, or a diagnosis (hop): run by name only
 
 
 def load(name: str):

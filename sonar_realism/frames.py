@@ -7,7 +7,6 @@ or `intensity[sample, range_bin, beam]` when a translator returns several sample
 from __future__ import annotations
 
 import contextvars
-import dataclasses
 import math
 import threading
 from dataclasses import dataclass, field
@@ -142,11 +141,12 @@ class SonarImage:
         """A copy with some fields changed, validated again; an unchanged intensity is not scanned for NaN/inf
         again (it was when this frame was made: a pass over every sample that a relabelled frame, e.g. a
         translator's output stamped with its input's seq, need not pay twice)."""
+        # The fields are exactly __dict__ (frozen, set once in __init__): cheaper than dataclasses.replace.
         if "intensity" in changes:
-            return dataclasses.replace(self, **changes)
+            return type(self)(**{**self.__dict__, **changes})
         token = _CHECKED_INTENSITY.set(self.intensity)
         try:
-            return dataclasses.replace(self, **changes)
+            return type(self)(**{**self.__dict__, **changes})
         finally:
             _CHECKED_INTENSITY.reset(token)
 

@@ -94,7 +94,7 @@ def encode_status(topic: str, status: dict) -> list:
     return [topic_bytes, _pack_header(header, topic)]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Message:
     """One received message: a frame (`body` is a SonarImage) or a status report (`body` is its status map)."""
 
@@ -102,6 +102,11 @@ class Message:
     kind: str                 # FRAME_TYPE or STATUS_TYPE
     body: SonarImage | dict
     sent_ns: int | None = None  # the publisher's wall-clock send time, when it sent one
+
+    def __init__(self, topic: str, kind: str, body: SonarImage | dict, sent_ns: int | None = None) -> None:
+        # By hand, as SonarImage's: one per received message, and the generated frozen __init__ (a setattr per
+        # field through object.__setattr__) cost more than the rest of a status message's decode.
+        self.__dict__.update(topic=topic, kind=kind, body=body, sent_ns=sent_ns)
 
 
 def decode_message(parts: Sequence[Any]) -> Message:
@@ -197,6 +202,9 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
 
 
 def _encode_axis(values: np.ndarray, name: str) -> dict | bytes:
+    forwarded = _FORWARDED_AXES.get(id(values))  # an id there is that array's: it is held, so alive and unique
+    if forwarded is not None:
+        return forwarded[1]
     explicit = np.ascontiguousarray(values, dtype=_FLOAT64_LE).tobytes()
     recent = _SENT_AXES[name]
     encoded = recent.get(explicit)
@@ -262,6 +270,9 @@ def _decode_axis(value: Any, name: str, count: int, topic: str) -> np.ndarray:
                 values = key[0] + key[1] * np.arange(count)
         axis = checked_axis(values, name, count)  # FrameError names the field; the caller makes it a WireError
         recent.put(key, axis)
+        # How encode_frame sends this very array (read-only, shared by the stream's frames) when a node forwards
+        # or relabels a received frame: found by identity, so its bytes are neither copied nor compared again.
+        _remember_forwarded(axis, _uniform_form(axis) or axis.astype(_FLOAT64_LE).tobytes())
     return axis
 
 
@@ -290,6 +301,18 @@ _FLOAT64_LE = np.dtype("<f8")
 _AXIS_NAMES = ("ranges_m", "azimuths_rad")
 _SENT_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}      # explicit bytes -> the form encode_frame sends
 _RECEIVED_AXES = {name: _RecentAxes() for name in _AXIS_NAMES}  # wire form -> checked read-only axis
+# id(axis) -> (axis, the form encode_frame sends) for the last axes decode_frame checked; holding each array keeps
+# its id from being reused. Looked up without a lock (one dict.get); changed under the lock, only for new geometry.
+_FORWARDED_AXES: dict[int, tuple[np.ndarray, dict | bytes]] = {}
+_FORWARDED_AXES_LOCK = threading.Lock()
+_MAX_FORWARDED_AXES = 16
+
+
+def _remember_forwarded(axis: np.ndarray, form: dict | bytes) -> None:
+    with _FORWARDED_AXES_LOCK:
+        if len(_FORWARDED_AXES) >= _MAX_FORWARDED_AXES:
+            del _FORWARDED_AXES[next(iter(_FORWARDED_AXES))]  # the oldest
+        _FORWARDED_AXES[id(axis)] = (axis, form)
 
 
 def _check_status(status: dict, topic: str | None = None) -> dict:
@@ -360,20 +383,11 @@ def _unpack_header(part: Any, topic: str) -> dict:
     if buffer.nbytes == 0:
         raise WireError("header", "empty part; expected a msgpack map", topic)
     try:
-        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True,
-                                 object_hook=_reject_timestamps_in_map, list_hook=_reject_timestamps_in_list)
-    except _ExtensionFound as found:
-        hint = " (the timestamp extension: send ns since the epoch as an int)" if found.code == -1 else ""
-        raise WireError("header", f"msgpack extension type {found.code}{hint} is not part of the wire format",
-                        topic) from None
+        # max_ext_len=0: msgpack refuses every extension with data in C, before it would decode the timestamp
+        # extension (-1) itself; the hooks below, which name the type, run only for a header that failed.
+        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True, max_ext_len=0)
     except Exception as error:  # msgpack raises many types for corrupt input; all mean "not our header"
-        name = type(error).__name__
-        reason = _MSGPACK_REASONS.get(name, "")
-        detail = str(error)
-        text = "; ".join(t for t in (reason, detail) if t) or name
-        raise WireError("header", f"not valid msgpack ({name}: {text})", topic) from error
-    if isinstance(header, msgpack.Timestamp):
-        raise WireError("header", "msgpack extension type -1 (timestamp) is not part of the wire format", topic)
+        raise _header_error(buffer, topic, error) from error
     if not isinstance(header, dict):
         raise WireError("header", f"expected a msgpack map, got {type(header).__name__}", topic)
     version = header.get("v")
@@ -381,6 +395,26 @@ def _unpack_header(part: Any, topic: str) -> dict:
         raise WireError("v", f"wire version {version!r} is not supported (this reader speaks version "
                              f"{WIRE_VERSION}); upgrade the older side", topic)
     return header
+
+
+def _header_error(buffer: memoryview, topic: str, error: Exception) -> WireError:
+    """The WireError for a header msgpack refused: the extension type it holds, or why it is not msgpack.
+    (Unpacks again with extensions decoded and Python hooks, which name the type: only for a rejected message.)"""
+    try:
+        header = msgpack.unpackb(buffer, raw=False, ext_hook=_reject_ext, strict_map_key=True,
+                                 object_hook=_reject_timestamps_in_map, list_hook=_reject_timestamps_in_list)
+    except _ExtensionFound as found:
+        hint = " (the timestamp extension: send ns since the epoch as an int)" if found.code == -1 else ""
+        return WireError("header", f"msgpack extension type {found.code}{hint} is not part of the wire format", topic)
+    except Exception as second:
+        error = second
+    else:
+        if isinstance(header, msgpack.Timestamp):
+            return WireError("header", "msgpack extension type -1 (timestamp) is not part of the wire format", topic)
+    name = type(error).__name__
+    reason = _MSGPACK_REASONS.get(name, "")
+    text = "; ".join(t for t in (reason, str(error)) if t) or name
+    return WireError("header", f"not valid msgpack ({name}: {text})", topic)
 
 
 class _ExtensionFound(Exception):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -19,6 +20,7 @@ from sonar_realism.wire import (
     FRAME_TYPE,
     MAX_HEADER_BYTES,
     STATUS_TYPE,
+    Message,
     decode_frame,
     decode_message,
     encode_frame,
@@ -151,6 +153,9 @@ def test_status_round_trip_over_a_socket(pair):
     message = decode_message(receiver.recv_multipart(copy=False))
     assert (message.topic, message.kind, message.body) == ("translator/status", STATUS_TYPE, status)
     assert message.sent_ns > 0
+    assert message == Message("translator/status", STATUS_TYPE, status, message.sent_ns)  # a value, by its fields
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        message.topic = "other"
     with pytest.raises(WireError, match="expected a frame message"):
         decode_frame(encode_status("translator/status", status))
 
@@ -237,6 +242,27 @@ def test_malformed_messages_raise_wire_error(parts, message):
 def test_extension_types_are_rejected_wherever_they_sit(meta):
     with pytest.raises(WireError, match="extension type") as caught:
         decode_message([b"t", header_of(FRAME, meta=meta), DATA])
+    assert (caught.value.topic, caught.value.field) == ("t", "header")
+
+
+# Every encoding msgpack decodes as a timestamp (-1): fixext 4/8 and ext 8/16/32 with 4, 8 or 12 data bytes,
+# the long forms being what a publisher's library may write. `seq` is the last key, so the header's map is complete.
+_TIMESTAMPS = {"fixext4": b"\xd6\xff" + bytes(4), "fixext8": b"\xd7\xff" + bytes(8),
+               "ext8-12": b"\xc7\x0c\xff" + bytes(12), "ext16-8": b"\xc8\x00\x08\xff" + bytes(8),
+               "ext32-4": b"\xc9\x00\x00\x00\x04\xff" + bytes(4)}
+
+
+@pytest.mark.parametrize("encoded", _TIMESTAMPS.values(), ids=_TIMESTAMPS)
+@pytest.mark.parametrize("where", ["value", "in-list", "whole-header"])
+def test_every_timestamp_encoding_is_rejected_naming_the_extension(encoded, where):
+    frame_header = msgpack.packb({k: v for k, v in msgpack.unpackb(header_of(FRAME)).items() if k != "seq"})
+    if where == "whole-header":
+        header = encoded
+    else:
+        value = b"\x91" + encoded if where == "in-list" else encoded
+        header = bytes([frame_header[0] + 1]) + frame_header[1:] + b"\xa3seq" + value  # one more map entry
+    with pytest.raises(WireError, match="extension type -1") as caught:
+        decode_message([b"t", header, DATA])
     assert (caught.value.topic, caught.value.field) == ("t", "header")
 
 
@@ -408,6 +434,19 @@ def test_a_changed_axis_is_checked_again_and_a_bad_one_rejected_with_its_field(f
     assert caught.value.field == field
     _, again = decode_frame(to_bytes(encode_frame(good, "t")))  # the good geometry still decodes
     np.testing.assert_array_equal(again.azimuths_rad, good.azimuths_rad)
+
+
+def test_forwarded_geometry_goes_out_as_it_came_in():
+    # Received frames carry checked axes, which encode_frame knows by identity: two streams forwarded in turn
+    # (each axis checked once, then met again) must each go out with their own geometry.
+    streams = [make_frame(seq=1), make_frame(seq=2).replace(ranges_m=uniform_ranges(24, 7.0),
+                                                            azimuths_rad=np.linspace(-0.5, 0.5, 16) ** 3)]
+    received = [decode_frame(to_bytes(encode_frame(frame, "t")))[1] for frame in streams]
+    for _ in range(2):
+        for frame, original in zip(received, streams, strict=True):
+            _, forwarded = decode_frame(to_bytes(encode_frame(frame, "t")))
+            np.testing.assert_array_equal(forwarded.azimuths_rad, original.azimuths_rad)
+            np.testing.assert_allclose(forwarded.ranges_m, original.ranges_m, rtol=0, atol=1e-12)
 
 
 def test_bearings_that_change_every_frame_are_decoded_exactly():

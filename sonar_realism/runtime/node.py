@@ -630,21 +630,20 @@ class Node:
     def _receive(self, timeout_s: float) -> None:
         """One poll of the inputs and acknowledgement sockets (at most `timeout_s`), handling what is there;
         run by whichever thread holds the sockets."""
-        poller = zmq.Poller()
-        if self._interrupt_in is not None:
-            poller.register(self._interrupt_in, zmq.POLLIN)
+        # (zmq_poll on a list built here: a zmq.Poller, its registrations and the dict of its answer cost more,
+        # on every wait of the loop)
+        watched = [] if self._interrupt_in is None else [(self._interrupt_in, zmq.POLLIN)]
         waiting_for_room = False
-        for sock, input_name in self._receivers.items():
-            if self._stop.is_set():
-                break
-            if self.queues[input_name].has_room():
-                poller.register(sock, zmq.POLLIN)
-            else:
-                waiting_for_room = True
-        for sock in self._ack_readers:
-            poller.register(sock, zmq.POLLIN)
+        if not self._stop.is_set():
+            for sock, input_name in self._receivers.items():
+                if self.queues[input_name].has_room():
+                    watched.append((sock, zmq.POLLIN))
+                else:
+                    waiting_for_room = True
+        watched += [(sock, zmq.POLLIN) for sock in self._ack_readers]
         # A full queue frees up without any socket event: look again soon.
-        readable = dict(poller.poll(min(timeout_s, _ROOM_POLL_S) * 1000 if waiting_for_room else timeout_s * 1000))
+        wait_s = min(timeout_s, _ROOM_POLL_S) if waiting_for_room else timeout_s
+        readable = {sock for sock, _ in zmq.zmq_poll(watched, int(wait_s * 1000))}
         if self._interrupt_in is not None and self._interrupt_in in readable:
             while self._interrupt_in.poll(0):
                 self._interrupt_in.recv()
