@@ -344,3 +344,29 @@ def test_lag_correlation_peaks_at_a_copy_of_each_frames_content():
     check = check_ghost(range_lag_correlation(copied), plain, 12.0)
     assert check.confirmed and int(np.argmax(range_lag_correlation(copied)[5:40])) + 5 == 12
     assert not check_ghost(range_lag_correlation(rng.rayleigh(0.2, (16, 96, 32))), plain, 12.0).confirmed
+
+
+
+def dimmed(frames: list[SonarImage], factor: float, count: int) -> list[SonarImage]:
+    """The first `count` frames `factor` times as bright in amplitude: a varied set, some views of darker ground."""
+    return [f.replace(intensity=f.normalized() * (factor if i < count else 1.0), intensity_scale=1.0)
+            for i, f in enumerate(frames)]
+
+
+def test_the_fit_frames_are_a_fair_sample_of_a_varied_set():
+    # A third of each set's frames are 10 dB darker. The sim's fit split (12 frames) holds 4 dark ones, and they
+    # are its first 4: a fit on those alone sees a sim darker than the real frames and spends TVG's gain on it
+    # (log coefficient and ramp at their bounds), which the held-out frames judge far worse than no effect, so
+    # nothing was named. The fit frames are the split's frames whose statistics' mean is the split's.
+    assert list(split_indices(24, 0.5, 0)[0][:4]) == [0, 1, 5, 7]
+    sim = dimmed(sim_frames(24, seed=1), 0.3, 8)
+    noise = make_effect("tvg_noise", noise_amplitude=0.1)
+    rng = np.random.default_rng(0)
+    real = [apply_effects(f, [noise], rng) for f in dimmed(sim_frames(24, seed=2), 0.3, 8)]
+    config = dataclasses.replace(FAST, eval_frames=12, effects=("tvg_noise", "gamma_quantization"))
+    result = diagnose(sim, real, config)
+    assert result.selected == ("tvg_noise",)
+    fitted = result.selected_effects[0].params
+    assert fitted["noise_amplitude"] == pytest.approx(0.1, abs=0.05)
+    assert abs(fitted["residual_ramp_db"]) < 6.0
+    assert result.gap_closed > 0.6
