@@ -58,7 +58,7 @@ class Effect(abc.ABC):
     # Position in the physical forward model (PIPELINE_ORDER sorts by it).
     ORDER: ClassVar[float]
     # Plausible range of each continuous parameter (what a fit searches over), in the order the diagnosis' coordinate
-    # search sweeps them: a parameter whose lower bound switches the effect off goes after those that shape it.
+    # search sweeps them (it matters where a parameter at its bound switches the effect off: see RingDown).
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]]
     # Hard physical limits (inclusive) that validate() enforces; wider than PARAM_BOUNDS.
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]]
