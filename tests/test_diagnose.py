@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -22,13 +23,13 @@ from sonar_realism.diagnose.gap import (
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
-from sonar_realism.diagnose.which import SelectionProblem, Solo, greedy_select, physics_off
+from sonar_realism.diagnose.which import SelectionProblem, Solo, coordinate_search, greedy_select, physics_off
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.sim import SensorConfig, simulate
-from sonar_realism.sim.effects import apply_effects, make_effect
+from sonar_realism.sim.effects import RingDown, apply_effects, make_effect
 
 SENSOR = SensorConfig(n_ranges=128, n_beams=128, max_range_m=10.0, elevation_rays=16)
 FAST = DiagnoseConfig(fit_frames=4, eval_frames=8, bootstrap=30, search=SearchConfig(points=4, rounds=1))
@@ -281,6 +282,22 @@ def test_a_gain_is_named_only_if_significantly_at_least_min_gain():
     scattered = select(0.97, 0.1)
     assert scattered.effects == [] and "not significantly by 5%" in scattered.stopped
     assert [e.name for e in select(0.96, 0.05).effects] == ["tvg_noise"]
+
+
+def test_a_ring_down_fit_tries_long_decays_before_switching_it_off():
+    # The shape of a tuning case (organic scene, a long damped-oscillation ring-down): at the calibrated short decay
+    # any ring-down is worse than none, a long one much better. Swept amplitude first, the search switches it off
+    # (amplitude 0), after which no decay changes anything; the catalogue lists the decay first.
+    def objective(effect: RingDown) -> float:
+        if effect.amplitude == 0.0:
+            return 1.0
+        return 1.5 if effect.decay_m < 0.1 else abs(effect.amplitude - 0.7) + abs(math.log(effect.decay_m / 0.3))
+
+    start = make_effect("ring_down")
+    best, score, _ = coordinate_search(start, RingDown.PARAM_BOUNDS, objective, SearchConfig())
+    assert best.decay_m > 0.1 and best.amplitude > 0.3 and score < 1.0
+    amplitude_first = {k: RingDown.PARAM_BOUNDS[k] for k in ("amplitude", "decay_m", "beam_ripple")}
+    assert coordinate_search(start, amplitude_first, objective, SearchConfig())[0].amplitude == 0.0
 
 
 def test_cli_writes_diagnosis_json_and_report(tmp_path):
