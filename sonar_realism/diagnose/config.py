@@ -31,7 +31,8 @@ class SearchConfig:
 
 @dataclass(frozen=True)
 class DiagnoseConfig:
-    """holdout_fraction: share of each set kept for measuring; fit_frames: sim frames the parameter search uses;
+    """holdout_fraction: share of each set kept for measuring; fit_frames: sim frames the parameter search uses
+    (those of the fit split whose mean statistics are closest to the split's, among up to eval_frames of it);
     eval_frames / real_frames: cap on held-out sim / real frames per measurement (cost grows with them);
     max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
     gap before to be selected); significance: one-sided level of the paired bootstrap test an effect's gain must

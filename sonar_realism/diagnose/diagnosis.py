@@ -22,6 +22,7 @@ from sonar_realism.diagnose.gap import (
     family_gaps,
     gap_closed,
     headline,
+    representative_subset,
 )
 from sonar_realism.diagnose.ghost import range_lag_correlation
 from sonar_realism.diagnose.parallel import parallel_map
@@ -116,7 +117,6 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     names = check_effect_names(config.effects)
     sim_fit_idx, sim_hold_idx = split_indices(len(sim), config.holdout_fraction, config.seed)
     real_fit_idx, real_hold_idx = split_indices(len(real), config.holdout_fraction, config.seed + 1)
-    fit_frames = [sim[i] for i in sim_fit_idx[:config.fit_frames]]
     eval_frames = [sim[i] for i in sim_hold_idx[:config.eval_frames]]
     real_fit = _images([real[i] for i in real_fit_idx[:config.real_frames]], config.normalize)
     real_hold = _images([real[i] for i in real_hold_idx[:config.real_frames]], config.normalize)
@@ -128,6 +128,11 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
                                                   for images in (real_fit, real_hold, raw_eval))
     scale = FeatureScale.pooled(raw_stats, real_hold_stats)
     say(f"statistics of {len(eval_frames)} sim and {len(real_hold)} real held-out frames")
+    # the parameter search sees only `fit_frames` sim frames: the ones of the fit split (among as many as are held
+    # out) whose statistics' mean is the split's, not the first few, whose chance level a fit would absorb
+    candidates = sim_fit_idx[:max(config.fit_frames, config.eval_frames)]
+    candidate_stats = _statistics(_images([sim[i] for i in candidates], config.normalize), stats_cfg, config.workers)
+    fit_frames = [sim[candidates[i]] for i in sorted(representative_subset(candidate_stats, config.fit_frames, scale))]
 
     def holdout_stats(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[np.ndarray, Stats]:
         images = corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize, gain)

@@ -76,6 +76,26 @@ def gap_closed(before: float, after: float) -> float:
     return float(1.0 - after / before) if before > 0 else 0.0
 
 
+def representative_subset(stats: Stats, n: int, scale: FeatureScale) -> list[int]:
+    """Indices (in order of choice) of `n` of the frames in `stats` whose mean features are closest, in `scale`'s
+    spreads, to the mean over all of them: greedily, one frame at a time. A few frames drawn at random from a varied
+    set (views of a scene whose level the calibrated simulator keeps) can sit far off the set's mean; a fit on them
+    would spend an effect's gain on that chance offset."""
+    count = _count(stats)
+    target = {family: values.mean(axis=0) for family, values in stats.items()}
+    chosen: list[int] = []
+    sums = {family: np.zeros(values.shape[1]) for family, values in stats.items()}
+    for size in range(1, min(n, count) + 1):
+        left = np.setdiff1d(np.arange(count), chosen)
+        distance = sum(np.mean(((sums[f][None, :] + stats[f][left]) / size - target[f]) ** 2 / spread ** 2, axis=1)
+                       for f, spread in scale.spread.items())
+        pick = int(left[int(np.argmin(distance))])
+        chosen.append(pick)
+        for family in sums:
+            sums[family] += stats[family][pick]
+    return chosen
+
+
 def bootstrap_interval(a: Stats, b: Stats, scale: FeatureScale, n_boot: int = 200, level: float = 0.95,
                        seed: int = 0) -> tuple[float, float]:
     """Interval of the headline gap from frame resamplings of both sets (percentiles, centred on the estimate)."""

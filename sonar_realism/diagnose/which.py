@@ -464,10 +464,11 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     `candidates_per_step` sets that fit best are judged on held-out frames. An effect that only helps together
     with another (speckle under a gamma curve) is useless alone and ranks low in the solo ranking, so a shortlist
     taken from that ranking would never reconsider it. The shortlisted set lowering the held-out gap most is kept
-    if the gain is at least `min_gain` x gap_before and significant: the one-sided `significance` lower bound of
-    a paired bootstrap of the gain is above 0, so an effect that merely nudges the statistics within their
-    sampling noise is left out and the gap stays residual. Each "add" step records its candidates with how often
-    each won over bootstrap resamples of the held-out frames (the first step: the whole solo ranking).
+    if the gain is at least `min_gain` x gap_before and significantly so: the one-sided `significance` lower bound
+    of a paired bootstrap of the gain is above `min_gain` x gap_before, so an effect that merely nudges the
+    statistics within their sampling noise is left out and the gap stays residual. Each "add" step records its
+    candidates with how often each won over bootstrap resamples of the held-out frames (the first step: the whole
+    solo ranking).
 
     Pruning then takes the effect whose removal costs least and compares the set without it against the whole
     set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
@@ -488,6 +489,10 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     current, current_stats = gap_before, problem.stats_before
     remaining = list(ranked)
     one_round = dataclasses.replace(c.search, rounds=1)
+    # an effect is added (and kept by pruning) only if its gain is significantly at least this: a world difference
+    # that an effect's fitted form mimics a little (interference arcs closing 10% of a no-effect gap) passes a test
+    # against 0 but not one against the least gain worth naming
+    least_gain = c.min_gain * max(gap_before, 1e-12)
     stopped = f"reached max_effects={c.max_effects}"
 
     def refit(name: str, base: Sequence[Effect], start: Effect) -> Fit:
@@ -540,13 +545,14 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
                                  for s in remaining)
         best_gap, best_base, best_effect, best_solo, best_stats = min(trials, key=lambda t: t[0])
         best_name = best_solo.ranked.name
-        if current - best_gap < c.min_gain * max(gap_before, 1e-12):
+        if current - best_gap < least_gain:
             stopped = f"no remaining effect lowers the held-out gap by {c.min_gain:.0%} of the gap before"
             break
         gain, lower = lower_bound(current_stats, best_stats, len(chosen))
-        if lower <= 0.0:
-            stopped = (f"the best remaining effect ({best_name}) lowers the held-out gap by {gain:.3g}, "
-                       f"not significantly (one-sided {c.significance:.0%} lower bound {lower:.3g} <= 0)")
+        if lower <= least_gain:
+            stopped = (f"the best remaining effect ({best_name}) lowers the held-out gap by {gain:.3g}, not "
+                       f"significantly by {c.min_gain:.0%} of the gap before (one-sided {c.significance:.0%} lower "
+                       f"bound {lower:.3g} <= {least_gain:.3g})")
             break
         chosen = [*best_base, best_effect]
         path.append(Step("add", best_name, best_gap, alternatives))
@@ -576,8 +582,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             chosen, current, current_stats = full, gap_full, stats_full
             path.append(Step("refit", "all", gap_full))
         cost = gap_without - current
-        significant = lower_bound(stats_without, current_stats, 100 + len(chosen))[1] > 0
-        if cost >= c.min_gain * max(gap_before, 1e-12) and significant:
+        if cost >= least_gain and lower_bound(stats_without, current_stats, 100 + len(chosen))[1] > least_gain:
             break
         chosen, current, current_stats = rest, gap_without, stats_without
         path.append(Step("remove", dropped.name, gap_without))

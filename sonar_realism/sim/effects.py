@@ -57,7 +57,8 @@ class Effect(abc.ABC):
     name: ClassVar[str]
     # Position in the physical forward model (PIPELINE_ORDER sorts by it).
     ORDER: ClassVar[float]
-    # Plausible range of each continuous parameter (what a fit searches over).
+    # Plausible range of each continuous parameter (what a fit searches over), in the order the diagnosis' coordinate
+    # search sweeps them (it matters where a parameter at its bound switches the effect off: see RingDown).
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]]
     # Hard physical limits (inclusive) that validate() enforces; wider than PARAM_BOUNDS.
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]]
@@ -601,8 +602,10 @@ class RingDown(Effect, order=90):
     amplitude: float = 0.139  # calibrated
     decay_m: float = 0.0418  # calibrated
     beam_ripple: float = 0.25
+    # the decay before the amplitude: a fit sweeps them in this order, and at the calibrated short decay a long
+    # real ring-down is matched best by no ring-down at all (amplitude 0), after which no decay changes anything
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
-        "amplitude": (0.0, 1.0), "decay_m": (0.005, 0.5), "beam_ripple": (0.0, 0.8)}
+        "decay_m": (0.005, 0.5), "beam_ripple": (0.0, 0.8), "amplitude": (0.0, 1.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "amplitude": (0.0, 10.0), "decay_m": (1e-5, 100.0), "beam_ripple": (0.0, 5.0)}
     CALIBRATED: ClassVar[tuple[str, ...]] = ("amplitude", "decay_m")
