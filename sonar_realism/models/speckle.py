@@ -43,6 +43,7 @@ from sonar_realism.models.speckle_fit import (
     LEVEL_BINS,
     NORMAL_SPAN,
     QUANTILES,
+    fit_speckle,
 )
 
 DENSE_STEPS = 1024  # normal scores at which the quantile table is looked up
@@ -93,6 +94,14 @@ class SpeckleField(nn.Module):
         self.fitted.fill_(1.0)
         self._refresh()
 
+    def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0) -> None:
+        """Fit on real frames scaled to their maximum and the mean field of each (`fit_speckle`; see the module
+        docstring), then match the grain (`match_grain`): what both the translator's and the calibrated
+        simulator's texture fits do."""
+        edges, table, kernel = fit_speckle(images, means, seed=seed)
+        self.set_fit(edges, np.maximum.accumulate(table, axis=1), kernel)  # a quantile table never decreases
+        self.match_grain(images, means, seed)
+
     def match_grain(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0) -> np.ndarray:
         """Widen each group's kernel so that samples around `means` have the lag-1 correlations (along range,
         across beams) of `images` around the pixels of that group; returns the Gaussian widths (bins)
@@ -107,19 +116,25 @@ class SpeckleField(nn.Module):
         fitted = self.kernel.numpy().astype(np.float64)
 
         def lag1_with(widths: np.ndarray) -> np.ndarray:
-            self.set_fit(self.level_edges.numpy(), self.ratio_quantiles.numpy(), _widened(fitted, widths))
+            self._use_kernel(_widened(fitted, widths))
             generator = torch.Generator().manual_seed(seed)
             return _group_lag1([self.sample(mean[None], generator)[0] for mean in means], groups)
 
+        short_as_fitted = lag1_with(np.zeros((GRAIN_GROUPS, 2))) < target
         low = np.zeros((GRAIN_GROUPS, 2))
         high = np.full((GRAIN_GROUPS, 2), GRAIN_MATCH_MAX_SIGMA)
         for _ in range(GRAIN_MATCH_STEPS):
             middle = 0.5 * (low + high)
             short = lag1_with(middle) < target
             low, high = np.where(short, middle, low), np.where(short, high, middle)
-        widths = np.where(lag1_with(np.zeros((GRAIN_GROUPS, 2))) < target, 0.5 * (low + high), 0.0)
-        self.set_fit(self.level_edges.numpy(), self.ratio_quantiles.numpy(), _widened(fitted, widths))
+        widths = np.where(short_as_fitted, 0.5 * (low + high), 0.0)
+        self._use_kernel(_widened(fitted, widths))
         return widths
+
+    def _use_kernel(self, kernel: np.ndarray) -> None:
+        """Swap the grain kernels only (the level and quantile lookups stay as fitted)."""
+        self.kernel.copy_(torch.from_numpy(kernel.astype(np.float32)))
+        self._spectra.clear()
 
     def level_bins(self, mean: torch.Tensor) -> torch.Tensor:
         """Each pixel's level bin (int64), read from the table at the nearest of LEVEL_STEPS levels."""

@@ -60,7 +60,6 @@ from sonar_realism.models.datasets import (
     to_model_grid,
 )
 from sonar_realism.models.device import pick_device
-from sonar_realism.models.speckle_fit import fit_speckle
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
 TEXTURE_FIT_FRAMES = 96  # evenly spaced over the training recordings: enough for 129 quantiles in 8 level bins
@@ -429,8 +428,7 @@ def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: s
         mean = model.sample(x.to(device), 1, TEXTURE_FIT_TEMPERATURE, generator, domain="real")[0, 0]
         means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
         images.append(normalise(frame, "frame_max"))
-    model.texture.set_fit(*fit_speckle(images, means, seed=seed))
-    model.texture.match_grain(images, means, seed=seed)
+    model.texture.fit(images, means, seed=seed)
 
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,

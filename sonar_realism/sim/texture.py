@@ -30,7 +30,7 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
-from sonar_realism.models.speckle_fit import GRAIN_GROUPS, KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE, fit_speckle
+from sonar_realism.models.speckle_fit import GRAIN_GROUPS, KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE
 
 if TYPE_CHECKING:
     from sonar_realism.models.speckle import SpeckleField
@@ -136,12 +136,8 @@ def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     chosen = [usable[i] for i in np.linspace(0, len(usable) - 1, min(FIT_FRAMES, len(usable))).astype(int)]
     from sonar_realism.models.speckle import SpeckleField
 
-    images = [image.astype(np.float32) for image in chosen]
-    means = [local_mean(image) for image in chosen]
-    edges, table, kernel = fit_speckle(images, means, seed=seed)
     speckle = SpeckleField()
-    speckle.set_fit(edges, np.maximum.accumulate(table, axis=1), kernel)
-    speckle.match_grain(images, means, seed)
+    speckle.fit([image.astype(np.float32) for image in chosen], [local_mean(image) for image in chosen], seed)
     texture = SensorTexture(_rounded(speckle.level_edges.numpy()), _rounded(speckle.ratio_quantiles.numpy()),
                             _rounded(speckle.kernel.numpy()), fit_row_gain(chosen))
     texture.validate()
