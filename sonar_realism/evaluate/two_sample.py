@@ -137,7 +137,7 @@ def texture_patches(frames: list[np.ndarray], config: TextureTestConfig, seed: i
     return out
 
 
-def _patch_classifier(width: int) -> torch.nn.Module:
+def patch_classifier(width: int) -> torch.nn.Module:
     layers: list[torch.nn.Module] = []
     channels = 1
     for out_channels in (width, 2 * width, 2 * width):
@@ -155,7 +155,7 @@ def _train_patch_classifier(real: np.ndarray, generated: np.ndarray, config: Tex
     y = torch.cat([torch.ones(len(real)), torch.zeros(len(generated))])
     # Inverse-frequency weights so unequal set sizes do not teach a constant answer.
     weight = torch.where(y > 0, len(y) / (2.0 * len(real)), len(y) / (2.0 * len(generated)))
-    model = _patch_classifier(config.width)
+    model = patch_classifier(config.width)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     for _ in range(config.epochs):
         model.train()

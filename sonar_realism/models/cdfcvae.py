@@ -33,6 +33,7 @@ from torch import nn
 
 from sonar_realism.config import from_dict, to_dict
 from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.models.learned_texture import LearnedTexture
 from sonar_realism.models.speckle import SpeckleField
 from sonar_realism.models.vgg import RELU_INDEX, VGGFeatures
 
@@ -58,8 +59,9 @@ class CDFCVAEConfig:
     # mean field needs no full-resolution convolutions; the texture comes from `texture`.
     output_stride: int = 1
     # "speckle": samples carry fitted sensor speckle (models/speckle.py) on the mean field the decoder gives,
-    # and the training target is the frame's local mean; "none": the paper's decoder output as is.
-    texture: Literal["none", "speckle"] = "none"
+    # and the training target is the frame's local mean; "learned": the same, with a texture generator trained
+    # against a patch critic on real frames (models/learned_texture.py); "none": the paper's decoder output as is.
+    texture: Literal["none", "speckle", "learned"] = "none"
     # "input": the mean field's detail finer than the decoder's output (its output_stride) comes from the input
     # frame: decoded × T(x) / coarse(T(x)), T the reconstruction target. The decoder sets the level, the input
     # keeps its sharp edges (seabed onset, targets, shadows), which a coarse decoder blurs. "none": as decoded.
@@ -224,12 +226,13 @@ class CDFCVAE(nn.Module):
         self.encoder_real = Encoder(cfg)
         self.encoder_sim = Encoder(cfg)
         self.decoder = Decoder(cfg)
-        self.texture = SpeckleField() if cfg.texture == "speckle" else None
+        self.texture: SpeckleField | LearnedTexture | None = (
+            SpeckleField() if cfg.texture == "speckle" else LearnedTexture() if cfg.texture == "learned" else None)
         self.register_buffer("target_blur", _gaussian_kernel(TARGET_BLUR_SIGMA), persistent=False)
 
     def reconstruction_target(self, x: torch.Tensor) -> torch.Tensor:
-        """What the decoder learns to output: the frame itself, or (texture "speckle") its local mean, since
-        the speckle around that mean is sampled, not decoded."""
+        """What the decoder learns to output: the frame itself, or (with a texture) its local mean, since the
+        texture around that mean is sampled, not decoded."""
         if self.texture is None:
             return x
         pad = self.target_blur.shape[-1] // 2

@@ -188,13 +188,18 @@ class SpeckleField(nn.Module):
             raise ConfigError("texture: this checkpoint's speckle statistics were never fitted")
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))
         bins = self.level_bins(mean_t)
-        image = mean_t * self.ratios(bins, self.correlated_normal(bins, generator))
-        if row_gain is not None:
-            image *= torch.from_numpy(np.asarray(row_gain, np.float32))[None, :, None]
-        image.clamp_(max=1.0)
-        peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
-        image = torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS
-        return image.numpy()
+        return export_like_sensor(mean_t * self.ratios(bins, self.correlated_normal(bins, generator)), row_gain)
+
+
+def export_like_sensor(image: torch.Tensor, row_gain: np.ndarray | None = None) -> np.ndarray:
+    """Textured frames [n, H, W] in full-scale units -> float32 as the real export: `row_gain` [H] multiplies
+    each range row, values clip at full scale (a sensor's 8-bit output), each frame is scaled to its maximum and
+    quantised to EXPORT_LEVELS steps."""
+    if row_gain is not None:
+        image = image * torch.from_numpy(np.asarray(row_gain, np.float32))[None, :, None]
+    image = image.clamp(max=1.0)
+    peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
+    return (torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS).numpy()
 
 
 def _widened(kernels: np.ndarray, widths: np.ndarray) -> np.ndarray:

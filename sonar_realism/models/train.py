@@ -60,6 +60,7 @@ from sonar_realism.models.datasets import (
     to_model_grid,
 )
 from sonar_realism.models.device import pick_device
+from sonar_realism.models.learned_texture import DEFAULT_FIT, LearnedTexture, TextureFitConfig
 
 STATE_FORMAT = "sonar_realism.cdfcvae.train_state"
 TEXTURE_FIT_FRAMES = 96  # evenly spaced over the training recordings: enough for 129 quantiles in 8 level bins
@@ -75,6 +76,7 @@ class TrainConfig:
 
     model: CDFCVAEConfig = field(default_factory=CDFCVAEConfig)
     perceptual: PerceptualConfig = field(default_factory=PerceptualConfig)
+    texture_fit: TextureFitConfig = field(default_factory=TextureFitConfig)  # model.texture "learned" only
     learning_rate: float = 5e-4
     adam_betas: tuple[float, float] = (0.5, 0.999)
     batch_size: int = 16
@@ -97,6 +99,7 @@ class TrainConfig:
     def validate(self) -> None:
         self.model.validate()
         self.perceptual.validate()
+        self.texture_fit.validate()
         if self.learning_rate <= 0 or self.batch_size < 1 or self.patience < 1:
             raise ConfigError("learning_rate, batch_size and patience must be positive")
         if self.epochs1 < 0 or self.epochs2 < 0:
@@ -317,9 +320,9 @@ class Trainer:
             self.save_state()
 
     def fit_texture(self, real_dir: str | Path, train_recordings: set[str]) -> None:
-        """Fit the speckle layer on the training recordings' frames (see `fit_model_texture`)."""
+        """Fit the texture layer on the training recordings' frames (see `fit_model_texture`)."""
         fit_model_texture(self.model, texture_frames(real_dir, train_recordings), self.cfg.normalisation,
-                          self.device, self.cfg.seed)
+                          self.device, self.cfg.seed, self.cfg.texture_fit, self.progress)
 
     # --- persistence
     def _checkpoint_info(self) -> dict[str, Any]:
@@ -411,24 +414,28 @@ def texture_frames(real_dir: str | Path, recordings: set[str] | None = None) -> 
     return frames
 
 
-@torch.no_grad()
 def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: str, device: torch.device,
-                      seed: int = 0) -> None:
-    """Fit the model's speckle layer (models/speckle.py) on real frames at their own resolution, around one
-    decoded draw of each at TEXTURE_FIT_TEMPERATURE (the mean field a translation multiplies): the texture the
-    decoder cannot express, its grain matched to the frames' (`SpeckleField.match_grain`). Uses
+                      seed: int = 0, schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> None:
+    """Fit the model's texture layer on real frames at their own resolution, around one decoded draw of each at
+    TEXTURE_FIT_TEMPERATURE (the mean field a translation textures): the texture the decoder cannot express.
+    Speckle (models/speckle.py): statistics, grain matched to the frames' (`SpeckleField.match_grain`); learned
+    (models/learned_texture.py): the generator trained against a patch critic for `schedule`. Uses
     TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
     assert model.texture is not None
     picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
     model.eval()
     images, means = [], []
     generator = torch.Generator(device=device).manual_seed(seed)
-    for frame in picked:
-        x = torch.from_numpy(to_model_grid(frame, model.cfg.grid, normalisation))[None, None]
-        mean = model.sample(x.to(device), 1, TEXTURE_FIT_TEMPERATURE, generator, domain="real")[0, 0]
-        means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
-        images.append(normalise(frame, "frame_max"))
-    model.texture.fit(images, means, seed=seed)
+    with torch.no_grad():
+        for frame in picked:
+            x = torch.from_numpy(to_model_grid(frame, model.cfg.grid, normalisation))[None, None]
+            mean = model.sample(x.to(device), 1, TEXTURE_FIT_TEMPERATURE, generator, domain="real")[0, 0]
+            means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
+            images.append(normalise(frame, "frame_max"))
+    if isinstance(model.texture, LearnedTexture):
+        model.texture.fit(images, means, seed, schedule, progress)
+    else:
+        model.texture.fit(images, means, seed=seed)
 
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,

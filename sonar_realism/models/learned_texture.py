@@ -1,0 +1,238 @@
+"""Texture learned against the sensor: a small convolutional generator trained adversarially on real frames.
+
+Why not the parametric speckle of models/speckle.py alone: a Gaussian-copula field with the sensor's marginal
+per level and its grain is told from the sensor's texture by a patch classifier at accuracy 1.00 even around a
+frame's own local mean, and so is the same field with the frame's own full power spectrum (phase-randomised):
+the tell is in the texture's higher-order structure (smooth blobs with soft edges where the copula draws
+isolated dark holes, streaks across beams, an asymmetric response along range; docs/RESULTS.md).
+
+The generator G maps a mean field M (the level a translation or a simulator gives) plus white noise at four
+scales (1, 1/2, 1/4, 1/8 of the grid, bilinearly upsampled: grain and blobs) and the range position to a log
+ratio; the sample is I = M · exp(G), clipped at full scale and exported as the sensor exports (scaled to its
+maximum, 8-bit). It is fully convolutional, so it runs on any grid at the sensor's own resolution.
+
+Fitting (`LearnedTexture.fit`) on real frames scaled to their maximum and a mean field of each (the same pairs
+SpeckleField.fit takes): crops of both; a patch critic with the texture two-sample test's architecture
+(evaluate/two_sample.py) sees 32 x 32 patches with their means removed, as the test does; the generator gets
+the critic's non-saturating loss plus the distance between real and generated log-ratio quantiles in each
+level bin of M (so the marginal per level, which the critic sees only through patch shapes, holds from the
+start). Quantisation to 8 bits is passed straight through, so the critic cannot key on it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.two_sample import patch_classifier
+from sonar_realism.models.speckle import export_like_sensor
+from sonar_realism.models.speckle_fit import EXPORT_LEVELS, LEVEL_BINS, MEAN_FLOOR
+
+GENERATOR_CHANNELS = 24
+DILATIONS = (1, 2, 4, 1, 2, 1)  # receptive field 25 bins, plus the 8-bin noise: a forward-looking sonar's blobs
+NOISE_SCALES = (1, 2, 4, 8)
+LEVEL_FLOOR = 1.0 / EXPORT_LEVELS  # the generator sees log levels from one 8-bit step up
+CRITIC_PATCH = 32  # the texture two-sample test's patch
+MARGINAL_QUANTILES = 33  # log-ratio quantiles compared per level bin, 0.01 to 0.99
+MARGINAL_MIN_PIXELS = 200  # a level bin with fewer pixels in a batch is left out of the marginal loss
+
+
+@dataclass(frozen=True)
+class TextureFitConfig:
+    """The adversarial fit's schedule (the generator's architecture is fixed: GENERATOR_CHANNELS, DILATIONS)."""
+
+    steps: int = 4000
+    crop: int = 64
+    batch: int = 16
+    generator_lr: float = 2e-4
+    critic_lr: float = 1e-3
+    critic_width: int = 32
+    marginal_weight: float = 1.0
+
+    def validate(self) -> None:
+        if self.crop < CRITIC_PATCH or self.crop % CRITIC_PATCH:
+            raise ConfigError(f"texture_fit.crop {self.crop}: a multiple of the critic's patch ({CRITIC_PATCH})")
+        if self.steps < 1 or self.batch < 1 or self.generator_lr <= 0 or self.critic_lr <= 0 or \
+                self.critic_width < 1 or self.marginal_weight < 0:
+            raise ConfigError(f"texture_fit: steps >= 1, batch >= 1, positive rates and critic_width, "
+                              f"marginal_weight >= 0 are needed, got {self}")
+
+
+DEFAULT_FIT = TextureFitConfig()
+
+
+class TextureGenerator(nn.Module):
+    """(log level, range position, multi-scale noise) -> log ratio; residual dilated 3 x 3 convolutions."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.inp = nn.Conv2d(2 + len(NOISE_SCALES), GENERATOR_CHANNELS, 3, padding=1)
+        self.body = nn.ModuleList([nn.Conv2d(GENERATOR_CHANNELS, GENERATOR_CHANNELS, 3, padding=d, dilation=d)
+                                   for d in DILATIONS])
+        self.out = nn.Conv2d(GENERATOR_CHANNELS, 1, 3, padding=1)
+
+    def forward(self, mean: torch.Tensor, range_position: torch.Tensor,
+                generator: torch.Generator | None = None) -> torch.Tensor:
+        """mean, range_position: [n, 1, H, W] -> log ratio [n, 1, H, W]."""
+        n, _, rows, cols = mean.shape
+        noises = []
+        for factor in NOISE_SCALES:
+            noise = torch.randn((n, 1, -(-rows // factor), -(-cols // factor)), generator=generator).to(mean.device)
+            noises.append(noise if factor == 1 else
+                          F.interpolate(noise, size=(rows, cols), mode="bilinear", align_corners=False))
+        level = torch.log(mean.clamp_min(LEVEL_FLOOR)) / 2 + 1  # about [-1, 1] over the 8-bit levels
+        x = F.leaky_relu(self.inp(torch.cat([level, range_position, *noises], 1)), 0.2)
+        for conv in self.body:
+            x = x + F.leaky_relu(conv(x), 0.2)
+        return self.out(x)
+
+
+def range_position(rows: int, cols: int, first_row: int = 0, total_rows: int | None = None) -> torch.Tensor:
+    """[1, 1, rows, cols]: each row's place in its frame's range, -1 (nearest) to 1 (farthest)."""
+    total = rows if total_rows is None else total_rows
+    place = (torch.arange(first_row, first_row + rows, dtype=torch.float32) / max(total - 1, 1)) * 2 - 1
+    return place[None, None, :, None].expand(1, 1, rows, cols)
+
+
+@dataclass(frozen=True)
+class TextureFitRecord:
+    steps: int
+    seconds: float
+    critic_loss: float  # last 100 steps' mean; 2 ln 2 = 1.386 is a critic at chance
+    marginal_loss: float
+
+
+class LearnedTexture(nn.Module):
+    """The generator's weights travel in the checkpoint; `fit` trains it, `sample` draws textured frames."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.generator = TextureGenerator()
+        self.register_buffer("level_edges", torch.linspace(0.0, 1.0, LEVEL_BINS + 1)[1:-1])
+        self.register_buffer("fitted", torch.zeros(()))
+
+    @property
+    def is_fitted(self) -> bool:
+        return bool(self.fitted.item())
+
+    def textured(self, mean: torch.Tensor, position: torch.Tensor,
+                 generator: torch.Generator | None = None) -> torch.Tensor:
+        """M · exp(G(M)), clipped at full scale, 8-bit steps passed straight through: [n, 1, H, W]."""
+        image = (mean * torch.exp(self.generator(mean, position, generator))).clamp(max=1.0)
+        stepped = torch.round(image * EXPORT_LEVELS) / EXPORT_LEVELS
+        return image + (stepped - image).detach()
+
+    @torch.no_grad()
+    def sample(self, mean: np.ndarray, generator: torch.Generator | None,
+               row_gain: np.ndarray | None = None) -> np.ndarray:
+        """Textured, max-scaled, 8-bit samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W] in full-scale
+        units; `row_gain` [H] as SpeckleField.sample has it."""
+        if not self.is_fitted:
+            raise ConfigError("texture: this checkpoint's learned texture was never fitted")
+        device = self.fitted.device
+        mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))[:, None].to(device)
+        position = range_position(*mean_t.shape[-2:]).to(device).expand(mean_t.shape[0], -1, -1, -1)
+        image = mean_t * torch.exp(self.generator(mean_t, position, generator))
+        return export_like_sensor(image[:, 0].float().cpu(), row_gain)
+
+    def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0,
+            schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> TextureFitRecord:
+        """Train the generator against a patch critic on real frames (scaled to their maximum) and a mean field
+        of each, on the same grid at the sensor's resolution."""
+        if not images or len(images) != len(means):
+            raise ConfigError(f"learned texture fit: need real frames and one mean field each, got {len(images)} "
+                              f"and {len(means)}")
+        schedule.validate()
+        crop = schedule.crop
+        for index, (image, mean) in enumerate(zip(images, means, strict=True)):
+            if image.shape != mean.shape or image.ndim != 2 or min(image.shape) < crop:
+                raise ConfigError(f"learned texture fit: frame {index} has shape {image.shape} and mean "
+                                  f"{mean.shape}; need equal 2-D shapes with sides >= {crop}")
+        levels = np.concatenate([np.maximum(m, MEAN_FLOOR).ravel() for m in means])
+        self.level_edges.copy_(torch.from_numpy(
+            np.quantile(levels, np.linspace(0, 1, LEVEL_BINS + 1)[1:-1]).astype(np.float32)))
+        torch.manual_seed(seed)
+        rng = np.random.default_rng(seed)
+        device = self.fitted.device
+        critic = patch_classifier(schedule.critic_width).to(device)
+        generator_opt = torch.optim.Adam(self.generator.parameters(), schedule.generator_lr, betas=(0.5, 0.99))
+        critic_opt = torch.optim.Adam(critic.parameters(), schedule.critic_lr, betas=(0.5, 0.99))
+        probabilities = torch.linspace(0.01, 0.99, MARGINAL_QUANTILES, device=device)
+        critic_losses: list[float] = []
+        marginal_losses: list[float] = []
+        start = time.perf_counter()
+        self.generator.train()
+        for step in range(schedule.steps):
+            real, mean, position = (t.to(device) for t in _crops(images, means, crop, schedule.batch, rng))
+            fake = self.textured(mean, position)
+            real_patches = _mean_removed_patches(real)
+            both = torch.cat([real_patches, _mean_removed_patches(fake.detach())])
+            flip = (torch.rand(len(both)) < 0.5).to(device)  # the test flips across beams at random too
+            logits = critic(torch.where(flip[:, None, None, None], both.flip(-1), both))[:, 0]
+            critic_loss = F.softplus(-logits[:len(real_patches)]).mean() + F.softplus(logits[len(real_patches):]).mean()
+            critic_opt.zero_grad()
+            critic_loss.backward()
+            critic_opt.step()
+            logits = critic(torch.cat([real_patches, _mean_removed_patches(fake)]))[len(real_patches):, 0]
+            marginal = self._marginal_loss(real, fake, mean, probabilities)
+            loss = F.softplus(-logits).mean() + schedule.marginal_weight * marginal
+            generator_opt.zero_grad()
+            loss.backward()
+            generator_opt.step()
+            critic_losses.append(critic_loss.item())
+            marginal_losses.append(marginal.item())
+            if progress and step % 100 == 0:
+                print(f"texture step {step}: critic {np.mean(critic_losses[-100:]):.3f}, marginal "
+                      f"{np.mean(marginal_losses[-100:]):.3f}", flush=True)
+        self.generator.eval()
+        self.fitted.fill_(1.0)
+        return TextureFitRecord(steps=schedule.steps, seconds=time.perf_counter() - start,
+                                critic_loss=float(np.mean(critic_losses[-100:])) if critic_losses else float("nan"),
+                                marginal_loss=float(np.mean(marginal_losses[-100:])) if marginal_losses else
+                                float("nan"))
+
+    def _marginal_loss(self, real: torch.Tensor, fake: torch.Tensor, mean: torch.Tensor,
+                       probabilities: torch.Tensor) -> torch.Tensor:
+        """Mean absolute difference of log-ratio quantiles, real against generated, over the level bins of M."""
+        real_log = torch.log((real / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
+        fake_log = torch.log((fake / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
+        bins = torch.bucketize(mean, self.level_edges)
+        total = torch.zeros((), device=mean.device)
+        for level in range(LEVEL_BINS):
+            inside = bins == level
+            if int(inside.sum()) < MARGINAL_MIN_PIXELS:
+                continue
+            total = total + (torch.quantile(real_log[inside], probabilities)
+                             - torch.quantile(fake_log[inside], probabilities)).abs().mean()
+        return total
+
+
+def _crops(images: list[np.ndarray], means: list[np.ndarray], crop: int, batch: int, rng: np.random.Generator
+           ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`batch` random crops: real [b, 1, crop, crop], its mean field, and their range position."""
+    reals, levels, positions = [], [], []
+    for _ in range(batch):
+        k = int(rng.integers(len(images)))
+        rows, cols = images[k].shape
+        r0, c0 = int(rng.integers(0, rows - crop + 1)), int(rng.integers(0, cols - crop + 1))
+        reals.append(images[k][r0:r0 + crop, c0:c0 + crop])
+        levels.append(means[k][r0:r0 + crop, c0:c0 + crop])
+        positions.append(range_position(crop, crop, r0, rows)[0, 0])
+
+    def stacked(arrays: list) -> torch.Tensor:
+        return torch.from_numpy(np.stack([np.asarray(a, np.float32) for a in arrays]))[:, None]
+
+    return stacked(reals), stacked(levels), stacked(positions)
+
+
+def _mean_removed_patches(images: torch.Tensor) -> torch.Tensor:
+    """The critic's view, as the texture test's: [n, 1, CRITIC_PATCH, CRITIC_PATCH] tiles, each less its mean."""
+    patches = images.unfold(2, CRITIC_PATCH, CRITIC_PATCH).unfold(3, CRITIC_PATCH, CRITIC_PATCH)
+    patches = patches.reshape(-1, 1, CRITIC_PATCH, CRITIC_PATCH)
+    return patches - patches.mean(dim=(2, 3), keepdim=True)
