@@ -16,7 +16,9 @@ SpeckleField.fit takes): crops of both; a patch critic with the texture two-samp
 (evaluate/two_sample.py) sees 32 x 32 patches with their means removed, as the test does; the generator gets
 the critic's non-saturating loss plus the distance between real and generated log-ratio quantiles in each
 level bin of M (so the marginal per level, which the critic sees only through patch shapes, holds from the
-start). Quantisation to 8 bits is passed straight through, so the critic cannot key on it.
+start) and between their neighbour correlations around M along range and across beams (the grain: without it
+the critic left the samples' lag-1 correlation along range at 0.15 against the sensor's 0.30). Quantisation
+to 8 bits is passed straight through, so the critic cannot key on it.
 """
 
 from __future__ import annotations
@@ -54,14 +56,15 @@ class TextureFitConfig:
     critic_lr: float = 1e-3
     critic_width: int = 32
     marginal_weight: float = 1.0
+    grain_weight: float = 10.0
 
     def validate(self) -> None:
         if self.crop < CRITIC_PATCH or self.crop % CRITIC_PATCH:
             raise ConfigError(f"texture_fit.crop {self.crop}: a multiple of the critic's patch ({CRITIC_PATCH})")
         if self.steps < 1 or self.batch < 1 or self.generator_lr <= 0 or self.critic_lr <= 0 or \
-                self.critic_width < 1 or self.marginal_weight < 0:
+                self.critic_width < 1 or self.marginal_weight < 0 or self.grain_weight < 0:
             raise ConfigError(f"texture_fit: steps >= 1, batch >= 1, positive rates and critic_width, "
-                              f"marginal_weight >= 0 are needed, got {self}")
+                              f"marginal_weight and grain_weight >= 0 are needed, got {self}")
 
 
 DEFAULT_FIT = TextureFitConfig()
@@ -181,7 +184,8 @@ class LearnedTexture(nn.Module):
             critic_opt.step()
             logits = critic(torch.cat([real_patches, _mean_removed_patches(fake)]))[len(real_patches):, 0]
             marginal = self._marginal_loss(real, fake, mean, probabilities)
-            loss = F.softplus(-logits).mean() + schedule.marginal_weight * marginal
+            grain_gap = (_lag1(real - mean) - _lag1(fake - mean)).square().sum()
+            loss = F.softplus(-logits).mean() + schedule.marginal_weight * marginal + schedule.grain_weight * grain_gap
             generator_opt.zero_grad()
             loss.backward()
             generator_opt.step()
@@ -229,6 +233,13 @@ def _crops(images: list[np.ndarray], means: list[np.ndarray], crop: int, batch: 
         return torch.from_numpy(np.stack([np.asarray(a, np.float32) for a in arrays]))[:, None]
 
     return stacked(reals), stacked(levels), stacked(positions)
+
+
+def _lag1(residual: torch.Tensor) -> torch.Tensor:
+    """[2]: correlation of neighbouring residuals along range and across beams, over a batch [n, 1, H, W]."""
+    energy = residual.square().sum().clamp_min(1e-12)
+    return torch.stack([(residual[:, :, 1:] * residual[:, :, :-1]).sum() / energy,
+                        (residual[..., 1:] * residual[..., :-1]).sum() / energy])
 
 
 def _mean_removed_patches(images: torch.Tensor) -> torch.Tensor:
