@@ -201,6 +201,24 @@ def test_checkpoint_with_a_wrong_shape_is_rejected_by_name(tmp_path):
         load_checkpoint(path)
 
 
+def test_a_safetensors_header_whose_length_starts_with_the_pickle_byte_loads(tmp_path):
+    # The header length is little-endian: one header size in 256 has 0x80, a pickle's first byte, as its low byte.
+    model = CDFCVAE(TINY)
+    path = save_checkpoint(model, tmp_path / "m.safetensors")
+    tensors = load_file(str(path))
+    metadata = {"format": "sonar_realism.cdfcvae", "pad": ""}
+    for pad in range(512):
+        metadata["pad"] = "x" * pad
+        save_file(tensors, str(path), metadata=metadata)
+        header = int.from_bytes(path.read_bytes()[:8], "little")
+        if header % 256 == 0x80:
+            break
+    assert header % 256 == 0x80
+    loaded, _ = load_checkpoint(path)
+    assert all(torch.equal(a, b) for a, b in zip(loaded.state_dict().values(), model.state_dict().values(),
+                                                 strict=True))
+
+
 def test_checkpoint_config_mismatch_and_pickles_are_rejected(tmp_path):
     path = _saved(tmp_path)
     sidecar = path.with_suffix(".json")

@@ -344,13 +344,17 @@ def file_sha256(path: str | Path) -> str:
 
 
 def _reject_non_safetensors(path: Path) -> None:
+    """A safetensors file is 8 bytes of little-endian header length, then a JSON header: recognised by that first.
+    Only then is a pickle's magic looked for; the length's low byte alone is 0x80 for one header size in 256."""
     with open(path, "rb") as fh:
-        head = fh.read(8)
+        head = fh.read(9)
+    header_length = int.from_bytes(head[:8], "little")
+    if len(head) == 9 and head[8:] == b"{" and 0 < header_length <= min(path.stat().st_size - 8, 100_000_000):
+        return
     if head[:1] == b"\x80" or head[:2] == b"PK":
         raise FormatError(str(path), "file", "this is a pickle/torch.save file; cDFCVAE checkpoints are safetensors "
                           "(+ JSON) only, and pickles are never loaded because they can run code")
-    if len(head) < 8 or int.from_bytes(head, "little") > 100_000_000:
-        raise FormatError(str(path), "header", "not a safetensors file")
+    raise FormatError(str(path), "header", "not a safetensors file")
 
 
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tuple[CDFCVAE, dict[str, Any]]:
