@@ -34,7 +34,7 @@ from torch import nn
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.two_sample import patch_classifier
 from sonar_realism.models.speckle import export_like_sensor
-from sonar_realism.models.speckle_fit import EXPORT_LEVELS, LEVEL_BINS, MEAN_FLOOR
+from sonar_realism.models.speckle_fit import EXPORT_LEVELS, LEVEL_BINS, MEAN_FLOOR, level_edges
 
 GENERATOR_CHANNELS = 24
 DILATIONS = (1, 2, 4, 1, 2, 1)  # receptive field 25 bins, plus the 8-bin noise: a forward-looking sonar's blobs
@@ -117,7 +117,6 @@ class LearnedTexture(nn.Module):
     def __init__(self) -> None:
         super().__init__()
         self.generator = TextureGenerator()
-        self.register_buffer("level_edges", torch.linspace(0.0, 1.0, LEVEL_BINS + 1)[1:-1])
         self.register_buffer("fitted", torch.zeros(()))
 
     @property
@@ -157,12 +156,11 @@ class LearnedTexture(nn.Module):
             if image.shape != mean.shape or image.ndim != 2 or min(image.shape) < crop:
                 raise ConfigError(f"learned texture fit: frame {index} has shape {image.shape} and mean "
                                   f"{mean.shape}; need equal 2-D shapes with sides >= {crop}")
-        levels = np.concatenate([np.maximum(m, MEAN_FLOOR).ravel() for m in means])
-        self.level_edges.copy_(torch.from_numpy(
-            np.quantile(levels, np.linspace(0, 1, LEVEL_BINS + 1)[1:-1]).astype(np.float32)))
         torch.manual_seed(seed)
         rng = np.random.default_rng(seed)
         device = self.fitted.device
+        edges = torch.from_numpy(level_edges(np.concatenate([np.maximum(m, MEAN_FLOOR).ravel() for m in means]))
+                                 .astype(np.float32)).to(device)
         critic = patch_classifier(schedule.critic_width).to(device)
         generator_opt = torch.optim.Adam(self.generator.parameters(), schedule.generator_lr, betas=(0.5, 0.99))
         critic_opt = torch.optim.Adam(critic.parameters(), schedule.critic_lr, betas=(0.5, 0.99))
@@ -183,7 +181,7 @@ class LearnedTexture(nn.Module):
             critic_loss.backward()
             critic_opt.step()
             logits = critic(torch.cat([real_patches, _mean_removed_patches(fake)]))[len(real_patches):, 0]
-            marginal = self._marginal_loss(real, fake, mean, probabilities)
+            marginal = _marginal_loss(real, fake, mean, edges, probabilities)
             grain_gap = (_lag1(real - mean) - _lag1(fake - mean)).square().sum()
             loss = F.softplus(-logits).mean() + schedule.marginal_weight * marginal + schedule.grain_weight * grain_gap
             generator_opt.zero_grad()
@@ -197,24 +195,24 @@ class LearnedTexture(nn.Module):
         self.generator.eval()
         self.fitted.fill_(1.0)
         return TextureFitRecord(steps=schedule.steps, seconds=time.perf_counter() - start,
-                                critic_loss=float(np.mean(critic_losses[-100:])) if critic_losses else float("nan"),
-                                marginal_loss=float(np.mean(marginal_losses[-100:])) if marginal_losses else
-                                float("nan"))
+                                critic_loss=float(np.mean(critic_losses[-100:])),
+                                marginal_loss=float(np.mean(marginal_losses[-100:])))
 
-    def _marginal_loss(self, real: torch.Tensor, fake: torch.Tensor, mean: torch.Tensor,
-                       probabilities: torch.Tensor) -> torch.Tensor:
-        """Mean absolute difference of log-ratio quantiles, real against generated, over the level bins of M."""
-        real_log = torch.log((real / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
-        fake_log = torch.log((fake / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
-        bins = torch.bucketize(mean, self.level_edges)
-        total = torch.zeros((), device=mean.device)
-        for level in range(LEVEL_BINS):
-            inside = bins == level
-            if int(inside.sum()) < MARGINAL_MIN_PIXELS:
-                continue
-            total = total + (torch.quantile(real_log[inside], probabilities)
-                             - torch.quantile(fake_log[inside], probabilities)).abs().mean()
-        return total
+
+def _marginal_loss(real: torch.Tensor, fake: torch.Tensor, mean: torch.Tensor, edges: torch.Tensor,
+                   probabilities: torch.Tensor) -> torch.Tensor:
+    """Mean absolute difference of log-ratio quantiles, real against generated, over the level bins of M."""
+    real_log = torch.log((real / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
+    fake_log = torch.log((fake / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
+    bins = torch.bucketize(mean, edges)
+    total = torch.zeros((), device=mean.device)
+    for level in range(LEVEL_BINS):
+        inside = bins == level
+        if int(inside.sum()) < MARGINAL_MIN_PIXELS:
+            continue
+        total = total + (torch.quantile(real_log[inside], probabilities)
+                         - torch.quantile(fake_log[inside], probabilities)).abs().mean()
+    return total
 
 
 def _crops(images: list[np.ndarray], means: list[np.ndarray], crop: int, batch: int, rng: np.random.Generator

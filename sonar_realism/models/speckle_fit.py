@@ -40,7 +40,7 @@ def fit_speckle(images: list[np.ndarray], means: list[np.ndarray], seed: int = 0
     rng = np.random.default_rng(seed)
     levels = np.concatenate([np.maximum(m, MEAN_FLOOR).ravel() for m in means])
     ratio = np.concatenate([(i / np.maximum(m, MEAN_FLOOR)).ravel() for i, m in zip(images, means, strict=True)])
-    edges = np.quantile(levels, np.linspace(0, 1, LEVEL_BINS + 1)[1:-1])
+    edges = level_edges(levels)
     bins = np.searchsorted(edges, levels, side="left")
     scores = np.linspace(-NORMAL_SPAN, NORMAL_SPAN, QUANTILES)
     probabilities = 0.5 * (1.0 + np.vectorize(math.erf)(scores / math.sqrt(2.0)))
@@ -57,6 +57,11 @@ def fit_speckle(images: list[np.ndarray], means: list[np.ndarray], seed: int = 0
         normal[in_bin] = np.interp(position, np.arange(QUANTILES), scores)
     kernels = grain_kernels(normal, bins // (LEVEL_BINS // GRAIN_GROUPS), [image.shape for image in images])
     return edges, table, kernels
+
+
+def level_edges(levels: np.ndarray) -> np.ndarray:
+    """[LEVEL_BINS - 1] edges splitting mean levels (floored at MEAN_FLOOR) into bins of equal pixel counts."""
+    return np.quantile(levels, np.linspace(0, 1, LEVEL_BINS + 1)[1:-1])
 
 
 def grain_kernels(normal: np.ndarray, groups: np.ndarray, shapes: list[tuple[int, ...]]) -> np.ndarray:
