@@ -54,7 +54,7 @@ def recording() -> list:
     return [frame for frame, _ in simulate_calibrated(truth(), 12, seed=3)]
 
 
-FAST = CalibrateConfig(sim_frames=6, mounting_frames=16, rounds=1, bootstrap=20, effect_bootstrap=1, texture=False)
+FAST = CalibrateConfig(sim_frames=6, mounting_frames=16, rounds=1, bootstrap=20, effect_bootstrap=1, texture="none")
 
 
 @pytest.fixture(scope="module")
@@ -209,7 +209,7 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     assert calibration.texture is not None  # the recording's own speckle, by default
     no_texture = tmp_path / "plain.json"
     assert cli_main(["calibrate", "--real", str(folder), "--out", str(no_texture), "--sim-frames", "2", "--rounds",
-                     "1", "--effect-bootstrap", "0", "--no-texture"]) == 0
+                     "1", "--effect-bootstrap", "0", "--texture", "none"]) == 0
     assert load_calibration(no_texture).texture is None
 
 

@@ -171,3 +171,26 @@ def test_shadow_box_clears_the_pixels_the_whole_grid_test_clears() -> None:
     whole &= hit_t.astype(np.float32)[index, np.arange(sensor.n_beams)[None, :]] >= r - np.float32(sensor.range_bin_m)
     np.testing.assert_array_equal(boxed, whole)
     assert (before & ~boxed).sum() > 100  # the objects did cast shadows
+
+
+def test_a_ridge_on_the_seabed_casts_a_shadow_behind_it_and_a_flat_seabed_none() -> None:
+    """Sonar 1 m up looking along +x; a 0.15 m ridge at x 4.0-4.3 m hides the ground up to where the line of sight
+    over its top meets the seabed again (x = 4.15 / 0.85 = 4.88 m)."""
+    sensor = dataclasses.replace(SENSOR, n_beams=32, n_ranges=400, fov_deg=20.0, max_range_m=8.0)
+    xs = -10.0 + 0.05 * np.arange(401)
+    flat = np.zeros((401, 401), np.float32)  # [y, x]
+    ridge = np.where((xs >= 4.0) & (xs <= 4.3), np.float32(0.15), np.float32(0.0))[None, :] * np.ones((401, 1))
+    pose = Pose(0.0, 0.0, 1.0, yaw=0.0, tilt=0.25)
+    beam = sensor.n_beams // 2
+    slant = np.hypot(np.array([3.5, 3.9, 4.5, 4.8, 5.1, 6.0]), 1.0)  # ground x -> slant range
+    rows = np.searchsorted(sensor.ranges_m, slant)
+
+    def column(heights: np.ndarray) -> np.ndarray:
+        seabed = Seabed(-10.0, -10.0, 0.05, heights.astype(np.float32), np.ones_like(heights, np.float32))
+        image, _ = render(Scene("ridge", 0, seabed, (), (), lambda n: [], "none"), pose, sensor)
+        return image[rows, beam]
+
+    assert (column(flat) > 0).all()
+    lit_before_a, lit_before_b, hidden_a, hidden_b, lit_after_a, lit_after_b = column(ridge)
+    assert min(lit_before_a, lit_before_b, lit_after_a, lit_after_b) > 0
+    assert hidden_a == 0 and hidden_b == 0

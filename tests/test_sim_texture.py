@@ -3,16 +3,19 @@ drawn in place of the catalogue's speckle and output mapping."""
 
 from __future__ import annotations
 
+import base64
 import dataclasses
 import json
 
 import numpy as np
 import pytest
+import torch
+from safetensors.torch import save
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
 from sonar_realism.sim.calibration import load_calibration, save_calibration
-from sonar_realism.sim.texture import fit_row_gain, fit_texture, local_mean
+from sonar_realism.sim.texture import LearnedSensorTexture, fit_learned_texture, fit_row_gain, fit_texture, local_mean
 from tests.test_sim_calibrate import truth
 
 
@@ -122,3 +125,40 @@ def test_row_gain_draws_lines_across_the_fan_and_old_files_without_it_still_load
     path.write_text(json.dumps(data))
     with pytest.raises(ConfigError, match="row_gain_log_quantiles"):
         load_calibration(path)
+
+
+@pytest.fixture(scope="module")
+def learned() -> LearnedSensorTexture:
+    return fit_learned_texture(grainy_frames(), seed=0, steps=3)
+
+
+def test_learned_texture_is_drawn_in_place_of_the_speckle_and_round_trips(texture, learned, tmp_path) -> None:
+    calibration = dataclasses.replace(truth(), texture=texture, learned_texture=learned)
+    clean, _ = calibrated_view(calibration, 0, 0)
+    chain = calibrated_chain(calibration, "all")
+    drawn = finish(calibration, clean, chain, np.random.default_rng(1)).intensity
+    speckled = finish(dataclasses.replace(calibration, learned_texture=None), clean, chain,
+                      np.random.default_rng(1)).intensity
+    assert drawn.dtype == np.uint8 and drawn.max() == 255 and not np.array_equal(drawn, speckled)
+    # drawn on the same level: the two textures agree on where the frame is bright
+    assert np.corrcoef(local_mean(drawn).ravel(), local_mean(speckled).ravel())[0, 1] > 0.8
+    assert not np.array_equal(drawn, finish(calibration, clean, chain, np.random.default_rng(2)).intensity)
+    path = tmp_path / "calib.json"
+    save_calibration(calibration, path)
+    loaded = load_calibration(path)
+    assert loaded.learned_texture == learned
+    np.testing.assert_array_equal(finish(loaded, clean, chain, np.random.default_rng(1)).intensity, drawn)
+
+
+def test_a_broken_learned_texture_is_refused_naming_the_field(texture, learned, tmp_path) -> None:
+    path = tmp_path / "calib.json"
+    save_calibration(dataclasses.replace(truth(), texture=texture, learned_texture=learned), path)
+    data = json.loads(path.read_text())
+    for broken, says in (("not base64!", "not base64"), (base64.b64encode(save({"weight": torch.zeros(2)})).decode(),
+                                                         "generator")):
+        data["learned_texture"]["safetensors_base64"] = broken
+        path.write_text(json.dumps(data))
+        with pytest.raises(ConfigError, match=f"learned_texture.safetensors_base64.*{says}"):
+            load_calibration(path)
+    with pytest.raises(ConfigError, match="needs the fitted texture"):
+        save_calibration(dataclasses.replace(truth(), learned_texture=learned), path)

@@ -63,13 +63,14 @@ from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, pe
 from sonar_realism.sim.measure import SeabedStats
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
-from sonar_realism.sim.texture import fit_texture
+from sonar_realism.sim.texture import DEFAULT_LEARNED_STEPS, fit_learned_texture, fit_texture
 
 MIN_FRAMES = 8
 MAX_GRID_MODES = 24
 GAIN_KNOTS = 8
 # Beam counts further apart than this ratio are different sensors (or modes) that need their own calibration.
 MIXED_BEAMS_RATIO = 1.25
+TEXTURES = ("none", "speckle", "learned")
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
 FITTED: tuple[tuple[str, str, bool], ...] = calibrated_parameters()
@@ -89,9 +90,12 @@ class CalibrateConfig:
     bootstrap: int = 200
     effect_bootstrap: int = 4
     seed: int = 0
-    # fit the recording's own speckle (sim/texture.py) and draw it in place of the catalogue's: on the real
-    # Oculus set it brings the texture two-sample test down (docs/RESULTS.md, #11)
-    texture: bool = True
+    # "speckle": fit the recording's own speckle (sim/texture.py) and draw it in place of the catalogue's (on the
+    # real Oculus set it brings the texture two-sample test down, docs/RESULTS.md, #11); "learned": also train a
+    # texture generator on the recording for `learned_steps` and draw that instead (closer still; a frame costs
+    # about 0.1 s more); "none": the catalogue's speckle
+    texture: str = "speckle"
+    learned_steps: int = DEFAULT_LEARNED_STEPS
 
     def validate(self) -> None:
         if not 0.5 <= self.vertical_fov_deg <= 90 or not 1 <= self.default_fov_deg <= 179:
@@ -102,6 +106,9 @@ class CalibrateConfig:
                 or self.effect_bootstrap < 0):
             raise ConfigError("calibrate: need sim_frames >= 2, mounting_frames >= 2, rounds >= 1, bootstrap >= 2, "
                               "effect_bootstrap >= 0")
+        if self.texture not in TEXTURES or self.learned_steps < 1:
+            raise ConfigError(f"calibrate: texture {self.texture!r} must be one of {', '.join(TEXTURES)} and "
+                              f"learned_steps ({self.learned_steps}) >= 1")
 
 
 @dataclass(frozen=True)
@@ -457,8 +464,12 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
     # the recording's own texture replaces the catalogue's speckle from here on (the effects were fitted with
     # the catalogue's, which the fingerprint search can steer); target highlight and residual gain under it
-    if config.texture:
+    if config.texture != "none":
         calibration = dataclasses.replace(calibration, texture=fit_texture(images, config.seed))
+        if config.texture == "learned":
+            say(f"texture: training the texture generator on the recording ({config.learned_steps} steps)")
+            calibration = dataclasses.replace(calibration, learned_texture=fit_learned_texture(
+                images, config.seed, config.learned_steps))
         # the texture's grain differs from the catalogue speckle's (long along range at dark levels), which
         # changes the measured patchiness: the seabed look matched again under it
         look = _match_seabed(calibration, chain, look, real_seabed, n, seed)
@@ -603,8 +614,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effect-bootstrap", type=int, default=CalibrateConfig.effect_bootstrap,
                         help="bootstrap refits for the effect-parameter intervals (default 4; 0: none)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-texture", action="store_true",
-                        help="keep the catalogue's speckle instead of fitting the recording's own texture")
+    parser.add_argument("--texture", choices=TEXTURES, default=CalibrateConfig.texture,
+                        help="the simulated texture: the recording's own speckle fitted (default), a generator "
+                             "trained on the recording (closer to it; minutes to fit, slower to draw), or the "
+                             "catalogue's speckle (none)")
+    parser.add_argument("--texture-steps", type=int, default=CalibrateConfig.learned_steps,
+                        help=f"training steps of --texture learned (default {DEFAULT_LEARNED_STEPS})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -612,7 +627,8 @@ def run(args: argparse.Namespace) -> int:
 
     config = CalibrateConfig(vertical_fov_deg=args.vertical_fov, default_fov_deg=args.fov,
                              default_range_bin_m=args.range_bin, sim_frames=args.sim_frames, rounds=args.rounds,
-                             effect_bootstrap=args.effect_bootstrap, seed=args.seed, texture=not args.no_texture)
+                             effect_bootstrap=args.effect_bootstrap, seed=args.seed, texture=args.texture,
+                             learned_steps=args.texture_steps)
     frames = load_recording(args.real, args.match, args.limit)
     source = Path(args.real).name + (f" [{args.match}]" if args.match else "")
     result = calibrate(frames, source, config, log=sys.stderr)

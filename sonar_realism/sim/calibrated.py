@@ -217,7 +217,7 @@ def _finished(calibration: Calibration, clean: SonarImage, chain: Sequence[Effec
         # speckled value saturates, not the mean (a clipped mean would be a flat plateau under uniform speckle)
         if output:
             frame = frame.replace(intensity=output[0].level(frame.intensity))
-        return apply_texture(calibration.texture, frame, rng)
+        return apply_texture(calibration.texture, frame, rng, calibration.learned_texture)
     if output:
         frame = apply_effects(frame, output, rng)
     if calibration.export_rescaled:

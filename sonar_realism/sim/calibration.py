@@ -16,7 +16,7 @@ from typing import Any
 from sonar_realism.config import from_dict, to_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.sim.effects import EFFECTS, Effect, make_effect
-from sonar_realism.sim.texture import SensorTexture
+from sonar_realism.sim.texture import LearnedSensorTexture, SensorTexture
 
 CALIBRATION_VERSION = 3  # 2: the texture's grain kernel per level group; 3: the patches' width across the fan
 
@@ -157,6 +157,8 @@ class Calibration:
     notes: tuple[str, ...] = field(default=())
     # the recording's own speckle (sim/texture.py), drawn in place of the catalogue's speckle; None: not fitted
     texture: SensorTexture | None = None
+    # `calibrate --texture learned`: a generator drawn in place of the fitted speckle (which keeps its row gain)
+    learned_texture: LearnedSensorTexture | None = None
 
     def validate(self) -> None:
         if self.version != CALIBRATION_VERSION:
@@ -168,6 +170,8 @@ class Calibration:
         for p in self.fitted:
             if p.effect not in self.effects or p.name not in self.effects[p.effect]:
                 raise ConfigError(f"fitted: {p.effect}.{p.name} is not among the effect parameters")
+        if self.learned_texture is not None and self.texture is None:
+            raise ConfigError("learned_texture: needs the fitted texture beside it (its row gain); got texture: null")
         for name, values in (("range_gain_db", self.range_gain_db), ("bearing_gain_db", self.bearing_gain_db)):
             if len(values) < 2 or not all(math.isfinite(v) and abs(v) <= 40.0 for v in values):
                 raise ConfigError(f"{name}: need >= 2 finite knots within +-40 dB")

@@ -10,7 +10,8 @@ the image), elevation phi positive up. The boresight is tilted down by `pose.til
 - Objects: rays on a (beam, elevation) grid across the vertical aperture hit the nearest solid (occlusion);
   each hit adds its backscatter to the (range, beam) bin it falls in (elevation ambiguity: returns from all
   elevations at one range pile up; vertical faces become bright arcs).
-- Shadows: a seabed pixel is dark when the object ray at its (beam, elevation) stops nearer than it.
+- Shadows: a seabed pixel is dark when the object ray at its (beam, elevation) stops nearer than it, or when
+  nearer seabed on its beam rises above its line of sight (relief: rocks, ripples, the far side of a mound).
 - Backscatter: per material (scene.MATERIALS), a power law of cos(incidence) plus a specular lobe; a
   bin sums the power of everything in it, weighted by the fraction of the bin each surface element fills.
 
@@ -200,6 +201,7 @@ def _seabed_band(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: n
     power = backscatter * albedo * fill
 
     _shade(visible, sin_p, r, hit_t, ranges, half_aperture, sensor)
+    _self_shadow(visible, dir_z, q)
     power *= visible
     return power
 
@@ -223,6 +225,15 @@ def _shade(visible: np.ndarray, sin_p: np.ndarray, r: np.ndarray, hit_t: np.ndar
     elevation_index = np.clip(((phi + half_aperture) / step).astype(np.int32), 0, sensor.elevation_rays - 1)
     blocker = hit_t.astype(np.float32)[elevation_index, np.arange(first_beam, last_beam)[None, :]]
     visible[box] &= blocker >= r[first_row:] - np.float32(sensor.range_bin_m)
+
+
+def _self_shadow(visible: np.ndarray, sin_elevation: np.ndarray, q: np.ndarray) -> None:
+    """Clear `visible` where nearer seabed along the same beam rises above the line of sight (a rock's or a
+    ripple's shadow): a point is lit only if its world elevation angle from the sonar is at least the largest
+    one of every nearer point on that beam (the running maximum down the range rows)."""
+    solved = np.where(np.abs(q) <= 1.0, sin_elevation, np.float32(-2.0))
+    horizon = np.maximum.accumulate(solved, axis=0)
+    visible &= solved >= horizon - np.float32(1e-6)
 
 
 def _power_law(cos_inc: np.ndarray, exponent: float) -> np.ndarray:

@@ -20,6 +20,8 @@ from it.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import functools
 import math
 from dataclasses import dataclass
@@ -33,6 +35,7 @@ from sonar_realism.frames import SonarImage
 from sonar_realism.models.speckle_fit import GRAIN_GROUPS, KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE
 
 if TYPE_CHECKING:
+    from sonar_realism.models.learned_texture import LearnedTexture
     from sonar_realism.models.speckle import SpeckleField
 
 MODEL_GRID = 128  # the local mean is the level on a 128 x 128 grid, the cDFCVAE's
@@ -41,6 +44,7 @@ FIT_FRAMES = 96  # frames the fit uses, evenly spaced over the recording
 REPLACES = ("speckle",)  # the catalogue effects the fitted texture stands in for
 ROW_GAIN_QUANTILES = 33  # of log row gain, at evenly spaced probabilities from 0.5 % to 99.5 %
 ROW_BASE_ROWS = 15  # a row's expected mean: the median of the row means this many rows around it
+DEFAULT_LEARNED_STEPS = 2000  # critic steps of `calibrate --texture learned` (about 15 min on 2 CPU cores)
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,58 @@ class SensorTexture:
                 or (np.abs(rows) > 2.0).any():
             raise ConfigError(f"texture.row_gain_log_quantiles: expected none or {ROW_GAIN_QUANTILES} non-decreasing "
                               f"finite numbers within +-2, got {rows.size}")
+
+
+@dataclass(frozen=True)
+class LearnedSensorTexture:
+    """The recording's texture as a generator trained against a patch critic (models/learned_texture.py), drawn
+    in place of the fitted speckle: its weights as a safetensors file, base64-encoded, so CALIB.json stays one
+    self-contained file (about 0.2 MB); `critic_loss` is the fit's last (2 ln 2 = 1.386: the critic at chance)."""
+
+    safetensors_base64: str
+    steps: int
+    critic_loss: float
+
+    def validate(self) -> None:
+        _learned_generator(self)  # decodes and loads the weights: ConfigError on anything wrong
+
+
+@functools.lru_cache(maxsize=4)
+def _learned_generator(texture: LearnedSensorTexture) -> LearnedTexture:
+    from safetensors import SafetensorError
+    from safetensors.torch import load
+
+    from sonar_realism.models.learned_texture import LearnedTexture
+
+    try:
+        weights = load(base64.b64decode(texture.safetensors_base64, validate=True))
+    except (binascii.Error, ValueError, SafetensorError) as exc:
+        raise ConfigError(f"learned_texture.safetensors_base64: not base64 of a safetensors file ({exc})") from exc
+    module = LearnedTexture()
+    try:
+        module.load_state_dict(weights)
+    except RuntimeError as exc:
+        raise ConfigError(f"learned_texture.safetensors_base64: not this library's texture generator "
+                          f"({str(exc).splitlines()[0]})") from exc
+    if not module.is_fitted:
+        raise ConfigError("learned_texture.safetensors_base64: the generator was never fitted")
+    return module.eval()
+
+
+def fit_learned_texture(images: list[np.ndarray], seed: int = 0, steps: int = DEFAULT_LEARNED_STEPS,
+                        progress: bool = False) -> LearnedSensorTexture:
+    """Train the texture generator on real frames scaled to their maximum around their local means (the level
+    `apply_texture` draws on), the same frames `fit_texture` uses."""
+    from safetensors.torch import save
+
+    from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
+
+    chosen = _fit_frames(images, TextureFitConfig.crop)
+    module = LearnedTexture()
+    record = module.fit([image.astype(np.float32) for image in chosen], [local_mean(image) for image in chosen], seed,
+                        TextureFitConfig(steps=steps), progress)
+    encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
+    return LearnedSensorTexture(encoded, record.steps, round(record.critic_loss, 4))
 
 
 @functools.lru_cache(maxsize=4)
@@ -128,12 +184,17 @@ def fit_row_gain(images: list[np.ndarray]) -> tuple[float, ...]:
     return _rounded(centre + (quantiles - centre) * shrink - centre)
 
 
+def _fit_frames(images: list[np.ndarray], side: int) -> list[np.ndarray]:
+    """FIT_FRAMES frames evenly spaced over those at least `side` samples along each axis."""
+    usable = [image for image in images if min(image.shape) >= side]
+    if not usable:
+        raise ConfigError(f"texture: no frame is at least {side} x {side} samples; cannot fit the sensor's texture")
+    return [usable[i] for i in np.linspace(0, len(usable) - 1, min(FIT_FRAMES, len(usable))).astype(int)]
+
+
 def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     """Fit on real frames scaled to their maximum, [ranges, beams] at the sensor's resolution."""
-    usable = [image for image in images if min(image.shape) >= TILE]
-    if not usable:
-        raise ConfigError(f"texture: no frame is at least {TILE} x {TILE} samples; cannot fit the sensor's texture")
-    chosen = [usable[i] for i in np.linspace(0, len(usable) - 1, min(FIT_FRAMES, len(usable))).astype(int)]
+    chosen = _fit_frames(images, TILE)
     from sonar_realism.models.speckle import SpeckleField
 
     speckle = SpeckleField()
@@ -144,10 +205,11 @@ def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     return texture
 
 
-def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Generator) -> SonarImage:
+def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Generator,
+                  learned: LearnedSensorTexture | None = None) -> SonarImage:
     """The frame's local mean level (the output mapping's, in full-scale units: 1.0 is 255) times a fresh draw
-    of the sensor's speckle, saturating at full scale, exported as the recording was (scaled to its maximum,
-    8-bit)."""
+    of the sensor's speckle (the learned generator's where there is one), saturating at full scale, exported as
+    the recording was (scaled to its maximum, 8-bit)."""
     import torch
 
     level = local_mean(frame.intensity.astype(np.float32))
@@ -156,5 +218,6 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     if texture.row_gain_log_quantiles:
         table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
         row_gain = np.exp(np.interp(rng.random(level.shape[0]), np.linspace(0.0, 1.0, table.size), table))
-    sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
+    field = _learned_generator(learned) if learned is not None else _speckle_field(texture)
+    sample = field.sample(level[None], generator, row_gain)[0]
     return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
