@@ -205,12 +205,19 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     assert calibration.grid.bearing_source.startswith("default") and any("130" in n for n in calibration.notes)
     page = out.with_suffix(".html").read_text()
     assert "data:image/png;base64," in page and "height above seabed" in page
+    assert "Texture: the recording&#x27;s speckle, fitted." in page
     assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
     assert calibration.texture is not None  # the recording's own speckle, by default
     no_texture = tmp_path / "plain.json"
     assert cli_main(["calibrate", "--real", str(folder), "--out", str(no_texture), "--sim-frames", "2", "--rounds",
                      "1", "--effect-bootstrap", "0", "--texture", "none"]) == 0
     assert load_calibration(no_texture).texture is None
+    learned = tmp_path / "learned.json"
+    assert cli_main(["calibrate", "--real", str(folder), "--out", str(learned), "--sim-frames", "2", "--rounds",
+                     "1", "--effect-bootstrap", "0", "--texture", "learned", "--texture-steps", "2"]) == 0
+    with_generator = load_calibration(learned)
+    assert with_generator.texture is not None and with_generator.learned_texture.steps == 2
+    assert "a generator trained on the recording (2 steps" in learned.with_suffix(".html").read_text()
 
 
 def test_a_recording_whose_seabed_fills_the_window_is_calibrated_with_the_mounting_assumed() -> None:

@@ -116,6 +116,10 @@ def write_report(result: CalibrationResult, path: str | Path) -> Path:
     gains = (f"range {', '.join(f'{v:+.1f}' for v in c.range_gain_db)} dB; "
              f"bearing {', '.join(f'{v:+.1f}' for v in c.bearing_gain_db)} dB")
     fans = fans_figure(result.real_images, result.examples, c.grid.modes[0].fov_deg)
+    texture = ("the catalogue's speckle" if c.texture is None else "the recording's speckle, fitted"
+               if c.learned_texture is None else
+               f"a generator trained on the recording ({c.learned_texture.steps} steps, critic loss "
+               f"{c.learned_texture.critic_loss:.3f}; 1.386 is a critic at chance)")
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>Calibration: {html.escape(c.source)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:2px 8px;font-size:13px}}</style></head><body>
@@ -125,6 +129,7 @@ the frames.</p>
 <h2>Real and calibrated simulation</h2><img src="data:image/png;base64,{fans}" style="max-width:100%">
 <h2>Fingerprint distance to the recording (lower is closer)</h2><table>{distances}</table>
 <h2>Brightness profiles</h2><img src="data:image/png;base64,{profiles_figure(result)}" style="max-width:100%">
+<p>Texture: {html.escape(texture)}.</p>
 <h2>Fitted values</h2><table><tr><th>quantity</th><th>value</th><th>interval</th></tr>{''.join(rows)}</table>
 <p>Residual gain: {gains}</p>
 <h2>Grid ({html.escape(c.grid.bearing_source)}; ranges: {html.escape(c.grid.range_source)})</h2>

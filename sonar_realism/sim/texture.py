@@ -11,6 +11,10 @@ kernel per level group, matched to the recording's neighbour correlations (`Spec
 effect, on the output level (after the output mapping): the simulated mean level, the sensor's speckle on top,
 exported as the recording was.
 
+With `calibrate --texture learned` a texture generator (models/learned_texture.py) is also trained on the same
+frames around the same local means, and drawn in place of the speckle model (the row gain below stays): its
+weights travel inside CALIB.json.
+
 A real sensor also varies its gain from range sample to range sample, the same across every beam of a ping
 (on the Oculus set about 2.7 % rms, with bright lines in its upper tail: several per frame). The fit keeps the
 part of each row mean's deviation that both halves of the fan share (the rest is speckle averaged over the
