@@ -13,8 +13,10 @@ import torch
 from safetensors.torch import save
 
 from sonar_realism.errors import ConfigError
+from sonar_realism.sim.calibrate import _match_noise_floor, _noise, _sim_images
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
 from sonar_realism.sim.calibration import load_calibration, save_calibration
+from sonar_realism.sim.measure import near_zero_fraction
 from sonar_realism.sim.texture import LearnedSensorTexture, fit_learned_texture, fit_row_gain, fit_texture, local_mean
 from tests.test_sim_calibrate import truth
 
@@ -162,3 +164,20 @@ def test_a_broken_learned_texture_is_refused_naming_the_field(texture, learned, 
             load_calibration(path)
     with pytest.raises(ConfigError, match="needs the fitted texture"):
         save_calibration(dataclasses.replace(truth(), learned_texture=learned), path)
+
+
+def test_noise_floor_under_the_texture_draws_the_recordings_share_of_black_pixels(texture) -> None:
+    calibration = dataclasses.replace(truth(), texture=texture)
+    chain = calibrated_chain(calibration, "all")
+
+    def black_share(effects) -> float:
+        images = _sim_images(calibration, effects, 6, 0)
+        return float(np.mean([near_zero_fraction(image) for image in images]))
+
+    amplitudes = []
+    assert black_share(chain) < 0.042  # the default floor (0.12) draws ~4 % here; none at all ~5 %
+    for wanted in (0.03, 0.047):
+        matched = _match_noise_floor(calibration, chain, wanted, 6, 0)
+        amplitudes.append(_noise(matched).noise_amplitude)
+        assert black_share(matched) == pytest.approx(wanted, abs=0.003)
+    assert amplitudes[0] > amplitudes[1]  # more black pixels wanted: a lower floor
