@@ -148,7 +148,10 @@ def test_column_stripes_are_left_unexplained_at_their_beams():
     frames = sim_frames(24, seed=3)
     beams = np.array([14, 37, 61, 80, 99, 117])
     gains_db = np.array([6.0, -6.0, 5.0, -5.0, 6.0, -6.0])
-    config = dataclasses.replace(FAST, effects=("elevation_spread", "tvg_noise", "beam_sidelobes"))
+    # 8 fit frames, not FAST's 4: the shape is kept only where two halves of the fit frames agree, and with two
+    # frames a half a scene's near-range rock decided it (on the 2026-11-23 machine the 4-frame fit chose other
+    # frames and kept no shape at all, at every commit; with 6 or 8 all six channels are found)
+    config = dataclasses.replace(FAST, fit_frames=8, effects=("elevation_spread", "tvg_noise", "beam_sidelobes"))
     result = diagnose(frames[0::2], striped(frames[1::2], beams, gains_db), config)
     assert result.selected == ()
     pattern = result.residual.gain_pattern

@@ -513,9 +513,6 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         say(f"texture: the recording's speckle fitted (sim/texture.py); seabed under it: contrast "
             f"{look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, width {look.patch_width_deg:.1f} deg, "
             f"dark {look.dark_fraction:.2f}")
-        chain = _match_noise_floor(calibration, chain, target.near_zero, config.mounting_frames, seed)
-        calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
-        say(f"noise floor under the texture: tvg_noise.noise_amplitude {_noise(chain).noise_amplitude:.4f}")
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
     for _ in range(2):
         sim_highlight = _sim_highlight(calibration, chain, n, seed)
@@ -531,6 +528,10 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
             # onset's median and its spread over frames
             sim_onsets = _frame_onsets(_sim_images(calibration, chain, config.mounting_frames, seed), mounting_bins)
             calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=True)
+        if calibration.texture is not None:
+            # under the gain as it stands: the residual gain lifts or lowers the black water as well
+            chain = _match_noise_floor(calibration, chain, target.near_zero, config.mounting_frames, seed)
+            calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
         sim_fp = fingerprint(_sim_images(calibration, chain, n, seed))
         range_db = np.clip(np.array(calibration.range_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS,
                                                                               "range"), -12, 12)
@@ -540,7 +541,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                                           bearing_gain_db=tuple(round(float(v), 2) for v in bearing_db))
     m = calibration.mounting
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
-        f"pitch sd {m.pitch_sd_deg.value:.2f} deg")
+        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {_noise(chain).noise_amplitude:.4f}")
 
     # intervals of the effect parameters: refits on bootstrap resamples of the recording, each against fresh sim frames
     fitted = _effect_intervals(calibration, chain, images, config, rng, log)
