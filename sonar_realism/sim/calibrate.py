@@ -99,8 +99,8 @@ class CalibrateConfig:
     seed: int = 0
     # "speckle": fit the recording's own speckle (sim/texture.py) and draw it in place of the catalogue's (on the
     # real Oculus set it brings the texture two-sample test down, docs/RESULTS.md, #11); "learned": also train a
-    # texture generator on the recording for `learned_steps` and draw that instead (closer still; a frame costs
-    # about 0.1 s more); "none": the catalogue's speckle
+    # texture generator on the recording for `learned_steps` and draw that instead (experimental: on the Oculus
+    # set no closer than the fitted speckle, and a frame costs about 0.14 s more); "none": the catalogue's speckle
     texture: str = "speckle"
     learned_steps: int = DEFAULT_LEARNED_STEPS
 
@@ -656,7 +656,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--texture", choices=TEXTURES, default=CalibrateConfig.texture,
                         help="the simulated texture: the recording's own speckle fitted (default), a generator "
-                             "trained on the recording (closer to it; minutes to fit, slower to draw), or the "
+                             "trained on the recording (experimental; minutes to fit, slower to draw), or the "
                              "catalogue's speckle (none)")
     parser.add_argument("--texture-steps", type=int, default=CalibrateConfig.learned_steps,
                         help=f"training steps of --texture learned (default {DEFAULT_LEARNED_STEPS})")
