@@ -208,6 +208,8 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     assert "Texture: the recording&#x27;s speckle, fitted." in page
     assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
     assert calibration.texture is not None  # the recording's own speckle, by default
+    noise = next(p.estimate for p in calibration.fitted if p.name == "noise_amplitude")
+    assert noise.low <= noise.value <= noise.high < 0.5  # matched under the texture, its own interval
     no_texture = tmp_path / "plain.json"
     assert cli_main(["calibrate", "--real", str(folder), "--out", str(no_texture), "--sim-frames", "2", "--rounds",
                      "1", "--effect-bootstrap", "0", "--texture", "none"]) == 0

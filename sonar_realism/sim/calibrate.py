@@ -311,6 +311,22 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
     return with_amplitude((low + high) / 2)
 
 
+def _with_noise_floor_interval(fitted: tuple[FittedParameter, ...], calibration: Calibration,
+                               chain: Sequence[Effect], images: Sequence[np.ndarray], config: CalibrateConfig,
+                               rng: np.random.Generator) -> tuple[FittedParameter, ...]:
+    """`fitted` with the noise amplitude's interval from its own fit: the floor matched to the 95th and 5th
+    percentiles of the recording's black share over bootstrap resamples of its frames (the effect refits that give
+    the other intervals run under the catalogue's speckle, where the amplitude means another floor)."""
+    shares = _estimate(np.array([measure.near_zero_fraction(i) for i in images]), np.mean, rng, config.bootstrap)
+    # more black pixels wanted: less noise, so the high share gives the low amplitude
+    low, high = (_noise(_match_noise_floor(calibration, chain, share, config.mounting_frames, config.seed))
+                 .noise_amplitude for share in (shares.high, shares.low))
+    value = _noise(chain).noise_amplitude
+    interval = Estimate(value, min(low, value), max(high, value))
+    return tuple(dataclasses.replace(p, estimate=interval) if (p.effect, p.name) == ("tvg_noise", "noise_amplitude")
+                 else p for p in fitted)
+
+
 def _sim_highlight(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
     """Median over simulated frames with a target of its return's 95th percentile over the seabed median."""
     ratios = []
@@ -546,6 +562,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     # intervals of the effect parameters: refits on bootstrap resamples of the recording, each against fresh sim frames
     fitted = _effect_intervals(calibration, chain, images, config, rng, log)
     seabed_intervals = _seabed_intervals(real_table, look, real_seabed, rng, b)
+    if calibration.texture is not None:
+        fitted = _with_noise_floor_interval(fitted, calibration, chain, images, config, rng)
     calibration = dataclasses.replace(calibration, fitted=fitted, seabed=seabed_intervals)
 
     # before / after
