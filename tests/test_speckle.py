@@ -8,7 +8,7 @@ import torch
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.texture import grain
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
-from sonar_realism.models.speckle import GRAIN_GROUPS, LEVEL_BINS, SpeckleField, _group_lag1
+from sonar_realism.models.speckle import GRAIN_GROUPS, LEVEL_BINS, SpeckleField, group_lag1
 from sonar_realism.models.speckle_fit import EXPORT_LEVELS, fit_speckle
 
 
@@ -65,11 +65,11 @@ def test_match_grain_brings_each_short_level_groups_neighbour_correlation_to_the
     means = [cv2.GaussianBlur(frame.astype(np.float32), (0, 0), 4.0) for frame in frames]
     field = fitted_on(frames, means)
     groups = [(field.level_bins(torch.from_numpy(mean)) // (LEVEL_BINS // GRAIN_GROUPS)).numpy() for mean in means]
-    real = _group_lag1(frames, groups)
+    real = group_lag1(frames, groups)
 
     def sampled_lag1(seed):
         generator = torch.Generator().manual_seed(seed)
-        return _group_lag1([field.sample(mean[None], generator)[0] for mean in means], groups)
+        return group_lag1([field.sample(mean[None], generator)[0] for mean in means], groups)
 
     before, before_other_draw = sampled_lag1(0), sampled_lag1(3)
     widths = field.match_grain(frames, means, seed=0)

@@ -123,10 +123,15 @@ class LearnedTexture(nn.Module):
     def is_fitted(self) -> bool:
         return bool(self.fitted.item())
 
+    def _speckled(self, mean: torch.Tensor, position: torch.Tensor,
+                  generator: torch.Generator | None) -> torch.Tensor:
+        """M · exp(G(M)), unclipped: [n, 1, H, W]."""
+        return mean * torch.exp(self.generator(mean, position, generator))
+
     def textured(self, mean: torch.Tensor, position: torch.Tensor,
                  generator: torch.Generator | None = None) -> torch.Tensor:
         """M · exp(G(M)), clipped at full scale, 8-bit steps passed straight through: [n, 1, H, W]."""
-        image = (mean * torch.exp(self.generator(mean, position, generator))).clamp(max=1.0)
+        image = self._speckled(mean, position, generator).clamp(max=1.0)
         stepped = torch.round(image * EXPORT_LEVELS) / EXPORT_LEVELS
         return image + (stepped - image).detach()
 
@@ -140,8 +145,7 @@ class LearnedTexture(nn.Module):
         device = self.fitted.device
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))[:, None].to(device)
         position = range_position(*mean_t.shape[-2:]).to(device).expand(mean_t.shape[0], -1, -1, -1)
-        image = mean_t * torch.exp(self.generator(mean_t, position, generator))
-        return export_like_sensor(image[:, 0].float().cpu(), row_gain)
+        return export_like_sensor(self._speckled(mean_t, position, generator)[:, 0].float().cpu(), row_gain)
 
     def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0,
             schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> TextureFitRecord:

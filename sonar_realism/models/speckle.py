@@ -112,13 +112,13 @@ class SpeckleField(nn.Module):
         images = [images[i] for i in picked]
         means = [np.ascontiguousarray(means[i], np.float32) for i in picked]
         groups = [(self.level_bins(torch.from_numpy(mean)) // (LEVEL_BINS // GRAIN_GROUPS)).numpy() for mean in means]
-        target = _group_lag1(images, groups)
+        target = group_lag1(images, groups)
         fitted = self.kernel.numpy().astype(np.float64)
 
         def lag1_with(widths: np.ndarray) -> np.ndarray:
             self._use_kernel(_widened(fitted, widths))
             generator = torch.Generator().manual_seed(seed)
-            return _group_lag1([self.sample(mean[None], generator)[0] for mean in means], groups)
+            return group_lag1([self.sample(mean[None], generator)[0] for mean in means], groups)
 
         short_as_fitted = lag1_with(np.zeros((GRAIN_GROUPS, 2))) < target
         low = np.zeros((GRAIN_GROUPS, 2))
@@ -213,7 +213,7 @@ def _widened(kernels: np.ndarray, widths: np.ndarray) -> np.ndarray:
     return np.stack(out)
 
 
-def _group_lag1(fields: list[np.ndarray], groups: list[np.ndarray]) -> np.ndarray:
+def group_lag1(fields: list[np.ndarray], groups: list[np.ndarray]) -> np.ndarray:
     """[GRAIN_GROUPS, 2] correlation of neighbouring values (along range, across beams) over the pairs whose
     two pixels are both in the group; NaN for a group with fewer than two such pairs."""
     out = np.full((GRAIN_GROUPS, 2), np.nan)
