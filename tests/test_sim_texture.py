@@ -181,3 +181,5 @@ def test_noise_floor_under_the_texture_draws_the_recordings_share_of_black_pixel
         amplitudes.append(_noise(matched).noise_amplitude)
         assert black_share(matched) == pytest.approx(wanted, abs=0.003)
     assert amplitudes[0] > amplitudes[1]  # more black pixels wanted: a lower floor
+    # a recording without black water does not show its floor: the fitted amplitude stays
+    assert _match_noise_floor(calibration, chain, 0.0, 6, 0) == list(chain)

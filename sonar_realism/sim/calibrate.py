@@ -78,6 +78,10 @@ GAIN_KNOTS = 8
 # Beam counts further apart than this ratio are different sensors (or modes) that need their own calibration.
 MIXED_BEAMS_RATIO = 1.25
 TEXTURES = ("none", "speckle", "learned")
+# The noise floor is matched on the recording's share of black pixels only where it has some, within this factor
+# of the amplitude the effect fit found.
+MIN_BLACK_SHARE = 1e-3
+FLOOR_RANGE = 16.0
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
 FITTED: tuple[tuple[str, str, bool], ...] = calibrated_parameters()
@@ -293,9 +297,13 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
     effect's search bounds (more noise, fewer black pixels). The effect fit sets the amplitude under the
     catalogue's speckle, whose gamma tail draws black pixels at noise level by itself; the recording's texture
     draws few there, so under it the floor sat too high (Oculus: 1.9 % of pixels black against the recording's
-    5.8 %)."""
+    5.8 %). A recording with next to no black pixels (below MIN_BLACK_SHARE) does not show its floor: the chain
+    is returned as it is. The search stays within a factor FLOOR_RANGE of the fitted amplitude."""
+    if real_near_zero < MIN_BLACK_SHARE:
+        return list(chain)
+    fitted = max(_noise(chain).noise_amplitude, 1e-3)
     low, high = TvgNoise.PARAM_BOUNDS["noise_amplitude"]
-    low, high = math.log(max(low, 1e-3)), math.log(high)
+    low, high = math.log(max(low, 1e-3, fitted / FLOOR_RANGE)), math.log(min(high, fitted * FLOOR_RANGE))
 
     def with_amplitude(log_amplitude: float) -> list[Effect]:
         return [dataclasses.replace(e, noise_amplitude=round(math.exp(log_amplitude), 5))
