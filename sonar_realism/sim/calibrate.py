@@ -298,8 +298,8 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
     through the recording's texture and export) is the recording's: bisection in log amplitude within the
     effect's search bounds (more noise, fewer black pixels). The effect fit sets the amplitude under the
     catalogue's speckle, whose gamma tail draws black pixels at noise level by itself; the recording's texture
-    draws few there, so under it the floor sat too high (Oculus: 1.9 % of pixels black against the recording's
-    5.8 %). A recording with next to no black pixels (below MIN_BLACK_SHARE) does not show its floor: the chain
+    draws few there, so under it the floor sat too high (Oculus: 1.8 % of pixels black against the recording's
+    6.1 %). A recording with next to no black pixels (below MIN_BLACK_SHARE) does not show its floor: the chain
     is returned as it is. The search stays within a factor FLOOR_RANGE of the fitted amplitude."""
     if real_near_zero < MIN_BLACK_SHARE:
         return list(chain)

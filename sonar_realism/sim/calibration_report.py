@@ -19,6 +19,7 @@ from sonar_realism.sim.fingerprint import PROFILE_BINS
 
 if TYPE_CHECKING:
     from sonar_realism.sim.calibrate import CalibrationResult
+    from sonar_realism.sim.calibration import Calibration
 
 
 def _figure_png(fig) -> str:  # noqa: ANN001 - a matplotlib Figure
@@ -84,6 +85,15 @@ def _row(name: str, value: float, low: float, high: float, unit: str = "") -> st
             f"<td>{low:.4g} .. {high:.4g}{unit}</td></tr>")
 
 
+def _texture_said(c: Calibration) -> str:
+    if c.texture is None:
+        return "the catalogue's speckle"
+    if c.learned_texture is None:
+        return "the recording's speckle, fitted"
+    return (f"a generator trained on the recording ({c.learned_texture.steps} steps, critic loss "
+            f"{c.learned_texture.critic_loss:.3f}; 1.386 is a critic at chance)")
+
+
 def write_report(result: CalibrationResult, path: str | Path) -> Path:
     """Write the report page; returns its path."""
     c = result.calibration
@@ -116,10 +126,7 @@ def write_report(result: CalibrationResult, path: str | Path) -> Path:
     gains = (f"range {', '.join(f'{v:+.1f}' for v in c.range_gain_db)} dB; "
              f"bearing {', '.join(f'{v:+.1f}' for v in c.bearing_gain_db)} dB")
     fans = fans_figure(result.real_images, result.examples, c.grid.modes[0].fov_deg)
-    texture = ("the catalogue's speckle" if c.texture is None else "the recording's speckle, fitted"
-               if c.learned_texture is None else
-               f"a generator trained on the recording ({c.learned_texture.steps} steps, critic loss "
-               f"{c.learned_texture.critic_loss:.3f}; 1.386 is a critic at chance)")
+    texture = _texture_said(c)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>Calibration: {html.escape(c.source)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:2px 8px;font-size:13px}}</style></head><body>

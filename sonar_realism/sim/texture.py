@@ -122,10 +122,11 @@ def fit_learned_texture(images: list[np.ndarray], seed: int = 0, steps: int = DE
 
     from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
 
-    chosen = _fit_frames(images, TextureFitConfig.crop)
+    schedule = TextureFitConfig(steps=steps)
+    chosen = _fit_frames(images, schedule.crop)
     module = LearnedTexture()
     record = module.fit([image.astype(np.float32) for image in chosen], [local_mean(image) for image in chosen], seed,
-                        TextureFitConfig(steps=steps), progress)
+                        schedule, progress)
     encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
     return LearnedSensorTexture(encoded, record.steps, round(record.critic_loss, 4))
 
