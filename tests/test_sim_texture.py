@@ -13,7 +13,8 @@ import torch
 from safetensors.torch import save
 
 from sonar_realism.errors import ConfigError
-from sonar_realism.sim.calibrate import _match_noise_floor, _noise, _sim_images
+from sonar_realism.models.speckle_fit import top_ratio
+from sonar_realism.sim.calibrate import _match_export_knee, _match_noise_floor, _noise, _sim_images
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
 from sonar_realism.sim.calibration import load_calibration, save_calibration
 from sonar_realism.sim.measure import near_zero_fraction
@@ -183,3 +184,35 @@ def test_noise_floor_under_the_texture_draws_the_recordings_share_of_black_pixel
     assert amplitudes[0] > amplitudes[1]  # more black pixels wanted: a lower floor
     # a recording without black water does not show its floor: the fitted amplitude stays
     assert _match_noise_floor(calibration, chain, 0.0, 6, 0) == list(chain)
+
+
+def test_export_knee_gives_the_recordings_top_of_the_range_and_old_files_clip(texture, tmp_path) -> None:
+    """Under a hard clip the calibrated sim piles its brightest speckle at 255 (0.35 % of the pixels here); the
+    knee matched on the simulated frames bends it to the recording's ratio of 99.9th percentile to maximum."""
+    effects = {**truth().effects, "gamma_quantization": {**truth().effects["gamma_quantization"], "gain": 0.3}}
+    calibration = dataclasses.replace(truth(), texture=texture, effects=effects)
+    chain = calibrated_chain(calibration, "all")
+
+    def top_and_full_share(candidate) -> tuple[float, float]:
+        images = _sim_images(candidate, chain, 6, 0)
+        return (float(np.median([top_ratio(image) for image in images])),
+                float(np.mean([np.mean(image >= image.max()) for image in images])))
+
+    assert texture.export_knee == 1.0  # nothing to bend around the grainy frames' own means
+    clipped_top, clipped_full = top_and_full_share(calibration)
+    matched = _match_export_knee(calibration, chain, 0.95, 6, 0)
+    bent_top, bent_full = top_and_full_share(matched)
+    assert clipped_top == 1.0 and clipped_full > 0.002
+    assert matched.texture.export_knee < 1.0 and bent_top == pytest.approx(0.95, abs=0.01)
+    assert bent_full < clipped_full / 10
+    path = tmp_path / "calib.json"
+    save_calibration(matched, path)
+    assert load_calibration(path).texture.export_knee == matched.texture.export_knee
+    data = json.loads(path.read_text())
+    del data["texture"]["export_knee"]  # a file fitted before the knee: the hard clip it was made with
+    path.write_text(json.dumps(data))
+    assert load_calibration(path).texture.export_knee == 1.0
+    data["texture"]["export_knee"] = 1.5
+    path.write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match="texture.export_knee"):
+        load_calibration(path)

@@ -4,12 +4,13 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file, save_file
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.texture import grain
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
 from sonar_realism.models.speckle import GRAIN_GROUPS, LEVEL_BINS, SpeckleField, group_lag1
-from sonar_realism.models.speckle_fit import EXPORT_LEVELS, fit_speckle
+from sonar_realism.models.speckle_fit import EXPORT_LEVELS, fit_speckle, top_ratio
 
 
 def correlated_speckle(shape, n, seed, smear_beams):
@@ -103,6 +104,35 @@ def test_samples_clip_at_full_scale_instead_of_scaling_everything_down():
     assert np.median(samples[:, 8:]) == pytest.approx(0.3, rel=0.25)
 
 
+def test_the_export_knee_bends_an_overshooting_top_instead_of_piling_pixels_at_full_scale():
+    """A mean brighter than the frames' (a simulator's highlights) overshoots full scale under the fitted speckle:
+    with a hard clip those pixels pile up at 255, where the sensor's frames have one or two. The matched knee
+    bends them below it; around the frames' own means nothing needs bending."""
+    rng = np.random.default_rng(0)
+    level = np.linspace(0.1, 1.0, 128)[:, None] * np.ones((1, 96))
+    frames, means = [], []
+    for _ in range(8):
+        image = level * np.sqrt(rng.gamma(4.0, 0.25, (128, 96)))
+        frames.append((np.round(image / image.max() * EXPORT_LEVELS) / EXPORT_LEVELS).astype(np.float32))
+        means.append(cv2.GaussianBlur(frames[-1], (0, 0), 4.0))
+    field = SpeckleField()
+    field.fit(frames, means)
+    assert float(field.export_knee) == 1.0
+    brighter = np.stack(means) * 1.2
+
+    def top_and_full_share() -> tuple[float, float]:
+        samples = field.sample(brighter, torch.Generator().manual_seed(1))
+        return float(np.median([top_ratio(s) for s in samples])), float(np.mean(samples >= 1.0))
+
+    real_top, real_full = float(np.median([top_ratio(f) for f in frames])), float(np.mean(np.stack(frames) >= 1.0))
+    clipped_top, clipped_full = top_and_full_share()
+    assert clipped_top == 1.0 and clipped_full > 10 * real_full
+    knee = field.match_export_knee(frames, list(brighter))
+    bent_top, bent_full = top_and_full_share()
+    assert knee < 1.0 and float(field.export_knee) == pytest.approx(knee)
+    assert real_top < bent_top < clipped_top and bent_full < 2 * real_full
+
+
 def test_unfitted_field_and_bad_fit_inputs_are_refused():
     with pytest.raises(ConfigError, match="never fitted"):
         SpeckleField().sample(np.ones((1, 64, 64), np.float32), None)
@@ -118,11 +148,17 @@ def test_texture_statistics_travel_in_the_checkpoint(tmp_path):
     model = CDFCVAE(config)
     model.texture.set_fit(*fit_speckle(correlated_speckle((64, 64), 3, seed=3, smear_beams=2),
                                        [np.ones((64, 64))] * 3))
+    model.texture.export_knee.fill_(0.6)
     path = save_checkpoint(model, tmp_path / "m.safetensors")
     loaded, _ = load_checkpoint(path)
     assert loaded.texture.is_fitted
-    for name in ("level_edges", "ratio_quantiles", "kernel"):
+    for name in ("level_edges", "ratio_quantiles", "kernel", "export_knee"):
         torch.testing.assert_close(getattr(loaded.texture, name), getattr(model.texture, name))
+    # a checkpoint fitted before the export knee loads with the hard clip it was fitted with
+    tensors = load_file(str(path))
+    del tensors["texture.export_knee"]
+    save_file(tensors, str(path))
+    assert float(load_checkpoint(path)[0].texture.export_knee) == 1.0
     # The decoder stops at half the grid and is resized up: the output keeps the grid's shape.
     assert loaded(torch.rand(2, 1, 32, 32))[0].shape == (2, 1, 32, 32)
 

@@ -26,6 +26,11 @@ levels came out with lag-1 correlations of 0.93 against the frames' 0.98 (neighb
 dark texture patches 2-4x the real ones), which a texture two-sample test sees at once. So the fit ends with
 `match_grain`: each group's kernel is widened by a Gaussian along range and across beams until frames sampled
 around the fitted mean fields have the real frames' lag-1 correlations around that group's pixels.
+
+The top of the range: the real export's brightest pixel is one of a handful (a frame's 99.9th percentile is
+0.96 of its maximum on the Oculus set), while the speckle's tail drawn on a bright mean overshoots full scale,
+and a hard clip there piled 0.6 % of a simulated frame's pixels at 255. So the export bends values above a knee
+smoothly towards full scale (`compress_top`), the knee matched last (`match_export_knee`) on that percentile.
 """
 
 from __future__ import annotations
@@ -38,12 +43,15 @@ from torch import nn
 from sonar_realism.errors import ConfigError
 from sonar_realism.models.speckle_fit import (
     EXPORT_LEVELS,
+    EXPORT_TOP_QUANTILE,
     GRAIN_GROUPS,
     KERNEL_SIZE,
     LEVEL_BINS,
     NORMAL_SPAN,
     QUANTILES,
     fit_speckle,
+    highest_knee_at,
+    top_ratio,
 )
 
 DENSE_STEPS = 1024  # normal scores at which the quantile table is looked up
@@ -63,6 +71,7 @@ class SpeckleField(nn.Module):
         kernel = torch.zeros(GRAIN_GROUPS, KERNEL_SIZE, KERNEL_SIZE)
         kernel[:, KERNEL_SIZE // 2, KERNEL_SIZE // 2] = 1.0
         self.register_buffer("kernel", kernel)
+        self.register_buffer("export_knee", torch.ones(()))  # 1: a hard clip at full scale
         self.register_buffer("fitted", torch.zeros(()))
         self._spectra: dict[tuple[int, int], torch.Tensor] = {}  # kernel spectra per grid
         self._refresh()
@@ -87,20 +96,46 @@ class SpeckleField(nn.Module):
     def is_fitted(self) -> bool:
         return bool(self.fitted.item())
 
-    def set_fit(self, level_edges: np.ndarray, ratio_quantiles: np.ndarray, kernel: np.ndarray) -> None:
+    def set_fit(self, level_edges: np.ndarray, ratio_quantiles: np.ndarray, kernel: np.ndarray,
+                export_knee: float = 1.0) -> None:
         self.level_edges.copy_(torch.from_numpy(level_edges.astype(np.float32)))
         self.ratio_quantiles.copy_(torch.from_numpy(ratio_quantiles.astype(np.float32)))
         self.kernel.copy_(torch.from_numpy(kernel.astype(np.float32)))
+        self.export_knee.fill_(export_knee)
         self.fitted.fill_(1.0)
         self._refresh()
 
     def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0) -> None:
         """Fit on real frames scaled to their maximum and the mean field of each (`fit_speckle`; see the module
-        docstring), then match the grain (`match_grain`): what both the translator's and the calibrated
-        simulator's texture fits do."""
+        docstring), then match the grain (`match_grain`) and the top of the export (`match_export_knee`): what
+        both the translator's and the calibrated simulator's texture fits do."""
         edges, table, kernel = fit_speckle(images, means, seed=seed)
         self.set_fit(edges, np.maximum.accumulate(table, axis=1), kernel)  # a quantile table never decreases
         self.match_grain(images, means, seed)
+        self.match_export_knee(images, means, seed)
+
+    def match_export_knee(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0) -> float:
+        """Set the export's knee to the highest at which samples around `means` have the median ratio of the
+        99.9th percentile to the maximum of `images` (frames scaled to their maximum; `highest_knee_at`); returns
+        it. 1.0 (a hard clip) where the samples' top is already as light. The compression is monotonic, so a
+        frame's quantile and maximum after it are those before it, compressed: one draw of each frame serves
+        every knee tried."""
+        if not self.is_fitted:
+            raise ConfigError("texture: fit the speckle statistics before matching the export")
+        picked = np.linspace(0, len(images) - 1, min(GRAIN_MATCH_FRAMES, len(images))).astype(int)
+        target = float(np.median([top_ratio(images[i]) for i in picked]))
+        generator = torch.Generator().manual_seed(seed)
+        raw = [self._speckled(np.ascontiguousarray(means[i], np.float32)[None], generator)[0] for i in picked]
+        tops = torch.stack([torch.stack([torch.quantile(frame.flatten(), EXPORT_TOP_QUANTILE), frame.max()])
+                            for frame in raw])
+
+        def ratio(knee: float) -> float:
+            top, peak = compress_top(tops, knee).clamp(max=1.0).unbind(1)
+            return float(torch.median(top / peak.clamp_min(1e-6)))
+
+        knee = highest_knee_at(ratio, target)
+        self.export_knee.fill_(knee)
+        return knee
 
     def match_grain(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0) -> np.ndarray:
         """Widen each group's kernel so that samples around `means` have the lag-1 correlations (along range,
@@ -186,18 +221,33 @@ class SpeckleField(nn.Module):
         (the translator's output median fell 30-45 % below its decoded level that way until 2026-11-23)."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's speckle statistics were never fitted")
+        return export_like_sensor(self._speckled(mean, generator), row_gain, float(self.export_knee))
+
+    def _speckled(self, mean: np.ndarray, generator: torch.Generator | None) -> torch.Tensor:
+        """Mean fields [n, H, W] times a draw of the speckle ratio, in full-scale units, before the export."""
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))
         bins = self.level_bins(mean_t)
-        return export_like_sensor(mean_t * self.ratios(bins, self.correlated_normal(bins, generator)), row_gain)
+        return mean_t * self.ratios(bins, self.correlated_normal(bins, generator))
 
 
-def export_like_sensor(image: torch.Tensor, row_gain: np.ndarray | None = None) -> np.ndarray:
+def compress_top(image: torch.Tensor, knee: float) -> torch.Tensor:
+    """Values above `knee` (full-scale units) bent smoothly towards full scale (tanh, slope 1 at the knee);
+    those below unchanged. `knee` 1.0: unchanged."""
+    if knee >= 1.0:
+        return image
+    span = 1.0 - knee
+    return torch.where(image > knee, knee + span * torch.tanh((image - knee) / span), image)
+
+
+def export_like_sensor(image: torch.Tensor, row_gain: np.ndarray | None = None, knee: float = 1.0) -> np.ndarray:
     """Textured frames [n, H, W] in full-scale units -> float32 as the real export: `row_gain` [H] multiplies
-    each range row, values clip at full scale (a sensor's 8-bit output), each frame is scaled to its maximum and
-    quantised to EXPORT_LEVELS steps."""
+    each range row, values above `knee` are compressed towards full scale (`compress_top`) and clip there (a
+    sensor's 8-bit output), each frame is scaled to its maximum and quantised to EXPORT_LEVELS steps. With the
+    hard clip alone (knee 1.0) the speckle's tail piled up at full scale: 0.6 % of a calibrated-sim frame's
+    pixels at 255 and 0.4 % of a translated one's, where the recording has one or two per frame."""
     if row_gain is not None:
         image = image * torch.from_numpy(np.asarray(row_gain, np.float32))[None, :, None]
-    image = image.clamp(max=1.0)
+    image = compress_top(image, knee).clamp(max=1.0)
     peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
     return (torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS).numpy()
 

@@ -4,6 +4,7 @@ fits and validates the same model without importing torch. See models/speckle.py
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -20,6 +21,38 @@ GRAIN_GROUPS = 4
 TILE = 64
 MEAN_FLOOR = 0.5 / 255.0  # below half an 8-bit step the ratio I / M says nothing about texture
 EXPORT_LEVELS = 255  # the real set is 8-bit, scaled so that its brightest pixel is 255
+EXPORT_TOP_QUANTILE = 0.999  # the export's knee is matched on a frame's 99.9th percentile over its maximum
+EXPORT_KNEE_LOW = 0.05  # the lowest knee the matches search (full-scale units)
+
+
+def highest_knee_at(top: Callable[[float], float], target: float, start: float = 1.0, step: float = 0.05,
+                    refine: int = 6) -> float:
+    """The highest knee in [EXPORT_KNEE_LOW, start] at which `top(knee)` (a sample's `top_ratio` under that
+    knee) is down to `target`: a scan down in `step`s, then bisection between the last two knees. `start` when
+    it is there already. The least compression that does it: below it, compressing further bends the whole top
+    and the ratio rises again. Where no knee gets there, the one of the lowest ratio."""
+    knee, best = start, (top(start), start)
+    if best[0] <= target:
+        return start
+    while knee > EXPORT_KNEE_LOW:
+        lower = max(knee - step, EXPORT_KNEE_LOW)
+        ratio = top(lower)
+        if ratio <= target:
+            low, high = lower, knee  # top(low) <= target < top(high)
+            for _ in range(refine):
+                middle = 0.5 * (low + high)
+                low, high = (middle, high) if top(middle) <= target else (low, middle)
+            return low
+        best = min(best, (ratio, lower))
+        knee = lower
+    return best[1]
+
+
+def top_ratio(image: np.ndarray) -> float:
+    """A frame's 99.9th percentile over its maximum: how light the top of its range is (0.96 on the Oculus set,
+    whose brightest pixel is one of a handful, not a clipped plateau)."""
+    values = np.asarray(image, np.float32).ravel()
+    return float(np.quantile(values, EXPORT_TOP_QUANTILE) / max(float(values.max()), 1e-12))
 
 
 def fit_speckle(images: list[np.ndarray], means: list[np.ndarray], seed: int = 0

@@ -40,6 +40,7 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
+from sonar_realism.models.speckle_fit import highest_knee_at, top_ratio
 from sonar_realism.sim import measure
 from sonar_realism.sim.calibrated import (
     SeabedLook,
@@ -321,6 +322,26 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
     return with_amplitude((low + high) / 2)
 
 
+def _match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_top: float, n: int,
+                       seed: int) -> Calibration:
+    """The calibration with the highest export knee at which its simulated frames (texture, gain and export
+    included) have the recording's median ratio of the 99.9th percentile to the maximum (`speckle_fit.top_ratio`,
+    `highest_knee_at`), searched down from the knee the texture fit found around the recording's own local means.
+    The simulated level reaches full scale over more of the frame than the recording's local mean does (target
+    highlights, the residual gain): under the texture fit's knee the calibrated Oculus sim still put 0.05 % of
+    its pixels at 255, where the recording has one or two per frame."""
+    assert calibration.texture is not None
+
+    def with_knee(knee: float) -> Calibration:
+        texture = dataclasses.replace(calibration.texture, export_knee=round(knee, 4))
+        return dataclasses.replace(calibration, texture=texture)
+
+    def top(knee: float) -> float:
+        return float(np.median([top_ratio(i) for i in _sim_images(with_knee(knee), chain, n, seed)]))
+
+    return with_knee(highest_knee_at(top, real_top, calibration.texture.export_knee, step=0.1, refine=4))
+
+
 def _with_noise_floor_interval(fitted: tuple[FittedParameter, ...], calibration: Calibration,
                                chain: Sequence[Effect], images: Sequence[np.ndarray], config: CalibrateConfig,
                                rng: np.random.Generator) -> tuple[FittedParameter, ...]:
@@ -548,6 +569,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                 calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
     say(f"targets: {calibration.targets}")
     mounting_bins = _sim_bins(calibration, config.mounting_frames, seed)
+    real_top = float(np.median([top_ratio(i) for i in images]))
     for rematch in (True, True, False):  # a last gain update on the settled mounting
         if rematch and onset_measured:
             # the mounting once more under the final chain, texture, export and gain, on more frames: the
@@ -565,9 +587,14 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         bearing_db = np.clip(bearing_db - bearing_db.mean(), -12, 12)
         calibration = dataclasses.replace(calibration, range_gain_db=tuple(round(float(v), 2) for v in range_db),
                                           bearing_gain_db=tuple(round(float(v), 2) for v in bearing_db))
+    if calibration.texture is not None:
+        # the top of the range under the final gain: the gain and the highlights set how often the level nears
+        # full scale
+        calibration = _match_export_knee(calibration, chain, real_top, config.mounting_frames, seed)
     m = calibration.mounting
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
-        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {_noise(chain).noise_amplitude:.4f}")
+        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {_noise(chain).noise_amplitude:.4f}"
+        + (f"; export knee {calibration.texture.export_knee:.3f}" if calibration.texture is not None else ""))
 
     # intervals of the effect parameters: refits on bootstrap resamples of the recording, each against fresh sim frames
     fitted = _effect_intervals(calibration, chain, images, config, rng, log)

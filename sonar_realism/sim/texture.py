@@ -61,6 +61,9 @@ class SensorTexture:
     kernel: tuple[tuple[tuple[float, ...], ...], ...]
     # log gain of one range row across all beams, quantiles (empty: no row gain, as in files fitted before it)
     row_gain_log_quantiles: tuple[float, ...] = ()
+    # full-scale level above which the export compresses (models/speckle.compress_top); 1.0, a hard clip at full
+    # scale, in files fitted before it
+    export_knee: float = 1.0
 
     def validate(self) -> None:
         shapes = {"level_edges": ((LEVEL_BINS - 1,), np.asarray(self.level_edges, dtype=np.float64)),
@@ -76,6 +79,8 @@ class SensorTexture:
                 or (np.abs(rows) > 2.0).any():
             raise ConfigError(f"texture.row_gain_log_quantiles: expected none or {ROW_GAIN_QUANTILES} non-decreasing "
                               f"finite numbers within +-2, got {rows.size}")
+        if not (isinstance(self.export_knee, (int, float)) and 0.0 < self.export_knee <= 1.0):
+            raise ConfigError(f"texture.export_knee: expected a number in (0, 1], got {self.export_knee!r}")
 
 
 @dataclass(frozen=True)
@@ -136,7 +141,8 @@ def _speckle_field(texture: SensorTexture) -> SpeckleField:
     from sonar_realism.models.speckle import SpeckleField
 
     speckle = SpeckleField()
-    speckle.set_fit(np.asarray(texture.level_edges), np.asarray(texture.ratio_quantiles), np.asarray(texture.kernel))
+    speckle.set_fit(np.asarray(texture.level_edges), np.asarray(texture.ratio_quantiles), np.asarray(texture.kernel),
+                    texture.export_knee)
     return speckle
 
 
@@ -205,7 +211,8 @@ def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     speckle = SpeckleField()
     speckle.fit([image.astype(np.float32) for image in chosen], [local_mean(image) for image in chosen], seed)
     texture = SensorTexture(_rounded(speckle.level_edges.numpy()), _rounded(speckle.ratio_quantiles.numpy()),
-                            _rounded(speckle.kernel.numpy()), fit_row_gain(chosen))
+                            _rounded(speckle.kernel.numpy()), fit_row_gain(chosen),
+                            _rounded(speckle.export_knee.numpy()[None])[0])
     texture.validate()
     return texture
 
