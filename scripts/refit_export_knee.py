@@ -1,8 +1,8 @@
 """Fit the export knee (models/speckle.compress_top) into a CALIB.json made before `calibrate` fitted it.
 
 What `calibrate` does for it, on the calibration's own recording: the knee around the recording's local means
-(`SpeckleField.match_export_knee`, as the texture fit), then on the calibrated sim's frames under the final gain
-(`calibrate._match_export_knee`). Every other value stays as it is (a full `calibrate` run would refit them all):
+(`texture.with_export_knee`, as the texture fit), then on the calibrated sim's frames under the final gain
+(`calibrate.match_export_knee`). Every other value stays as it is (a full `calibrate` run would refit them all):
 
     python scripts/refit_export_knee.py --calibration sonar_realism/assets/oculus_calibration.json \\
         --real ../shared/data/real/oculus_polar_seabed/dataset --match Oculus_20250805_173650 --out CALIB.json
@@ -19,11 +19,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from sonar_realism.models.speckle_fit import TILE, top_ratio  # noqa: E402
-from sonar_realism.sim.calibrate import CalibrateConfig, _match_export_knee, load_recording  # noqa: E402
+from sonar_realism.models.speckle_fit import top_ratio  # noqa: E402
+from sonar_realism.sim.calibrate import CalibrateConfig, load_recording, match_export_knee  # noqa: E402
 from sonar_realism.sim.calibration import load_calibration, save_calibration  # noqa: E402
 from sonar_realism.sim.fingerprint import per_frame_rescaled  # noqa: E402
-from sonar_realism.sim.texture import _fit_frames, _speckle_field, local_mean  # noqa: E402
+from sonar_realism.sim.texture import with_export_knee  # noqa: E402
 
 
 def main() -> int:
@@ -38,16 +38,14 @@ def main() -> int:
     if calibration.texture is None:
         raise SystemExit(f"{args.calibration}: no fitted texture, so no export knee to fit")
     images = [per_frame_rescaled(f.intensity) for f in load_recording(args.real, args.match, args.limit)]
-    chosen = [image.astype(np.float32) for image in _fit_frames(images, TILE)]
-    around_means = _speckle_field(calibration.texture).match_export_knee(chosen, [local_mean(c) for c in chosen])
-    calibration = dataclasses.replace(calibration, texture=dataclasses.replace(
-        calibration.texture, export_knee=round(around_means, 4)))
+    calibration = dataclasses.replace(calibration, texture=with_export_knee(calibration.texture, images))
+    around_means = calibration.texture.export_knee
     config = CalibrateConfig()
-    calibration = _match_export_knee(calibration, calibration.effect_chain(),
+    calibration = match_export_knee(calibration, calibration.effect_chain(),
                                      float(np.median([top_ratio(i) for i in images])), config.mounting_frames,
                                      config.seed)
     save_calibration(calibration, args.out)
-    print(f"export knee {around_means:.4f} around the recording's means, {calibration.texture.export_knee} on the "
+    print(f"export knee {around_means} around the recording's means, {calibration.texture.export_knee} on the "
           f"calibrated sim; wrote {args.out}")
     return 0
 

@@ -14,7 +14,7 @@ from safetensors.torch import save
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.models.speckle_fit import top_ratio
-from sonar_realism.sim.calibrate import _match_export_knee, _match_noise_floor, _noise, _sim_images
+from sonar_realism.sim.calibrate import _match_noise_floor, _noise, _sim_images, match_export_knee
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
 from sonar_realism.sim.calibration import load_calibration, save_calibration
 from sonar_realism.sim.measure import near_zero_fraction
@@ -151,6 +151,10 @@ def test_learned_texture_is_drawn_in_place_of_the_speckle_and_round_trips(textur
     loaded = load_calibration(path)
     assert loaded.learned_texture == learned
     np.testing.assert_array_equal(finish(loaded, clean, chain, np.random.default_rng(1)).intensity, drawn)
+    # the learned texture's export bends its top at the texture's knee too
+    bent = finish(dataclasses.replace(calibration, texture=dataclasses.replace(texture, export_knee=0.2)), clean, chain,
+                  np.random.default_rng(1)).intensity
+    assert (bent == 255).sum() < (drawn == 255).sum()
 
 
 def test_a_broken_learned_texture_is_refused_naming_the_field(texture, learned, tmp_path) -> None:
@@ -200,7 +204,7 @@ def test_export_knee_gives_the_recordings_top_of_the_range_and_old_files_clip(te
 
     assert texture.export_knee == 1.0  # nothing to bend around the grainy frames' own means
     clipped_top, clipped_full = top_and_full_share(calibration)
-    matched = _match_export_knee(calibration, chain, 0.95, 6, 0)
+    matched = match_export_knee(calibration, chain, 0.95, 6, 0)
     bent_top, bent_full = top_and_full_share(matched)
     assert clipped_top == 1.0 and clipped_full > 0.002
     assert matched.texture.export_knee < 1.0 and bent_top == pytest.approx(0.95, abs=0.01)

@@ -137,15 +137,15 @@ class LearnedTexture(nn.Module):
 
     @torch.no_grad()
     def sample(self, mean: np.ndarray, generator: torch.Generator | None,
-               row_gain: np.ndarray | None = None) -> np.ndarray:
+               row_gain: np.ndarray | None = None, knee: float = 1.0) -> np.ndarray:
         """Textured, max-scaled, 8-bit samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W] in full-scale
-        units; `row_gain` [H] as SpeckleField.sample has it."""
+        units; `row_gain` [H] and the export's `knee` as `export_like_sensor` takes them."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's learned texture was never fitted")
         device = self.fitted.device
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))[:, None].to(device)
         position = range_position(*mean_t.shape[-2:]).to(device).expand(mean_t.shape[0], -1, -1, -1)
-        return export_like_sensor(self._speckled(mean_t, position, generator)[:, 0].float().cpu(), row_gain)
+        return export_like_sensor(self._speckled(mean_t, position, generator)[:, 0].float().cpu(), row_gain, knee)
 
     def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0,
             schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> TextureFitRecord:

@@ -322,7 +322,7 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
     return with_amplitude((low + high) / 2)
 
 
-def _match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_top: float, n: int,
+def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_top: float, n: int,
                        seed: int) -> Calibration:
     """The calibration with the highest export knee at which its simulated frames (texture, gain and export
     included) have the recording's median ratio of the 99.9th percentile to the maximum (`speckle_fit.top_ratio`,
@@ -590,7 +590,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     if calibration.texture is not None:
         # the top of the range under the final gain: the gain and the highlights set how often the level nears
         # full scale
-        calibration = _match_export_knee(calibration, chain, real_top, config.mounting_frames, seed)
+        calibration = match_export_knee(calibration, chain, real_top, config.mounting_frames, seed)
     m = calibration.mounting
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
         f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {_noise(chain).noise_amplitude:.4f}"

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -138,12 +139,25 @@ def fit_learned_texture(images: list[np.ndarray], seed: int = 0, steps: int = DE
 
 @functools.lru_cache(maxsize=4)
 def _speckle_field(texture: SensorTexture) -> SpeckleField:
+    """The sampler of `texture`, shared by every draw of it: never changed after it is made."""
+    return _new_speckle_field(texture)
+
+
+def _new_speckle_field(texture: SensorTexture) -> SpeckleField:
     from sonar_realism.models.speckle import SpeckleField
 
     speckle = SpeckleField()
     speckle.set_fit(np.asarray(texture.level_edges), np.asarray(texture.ratio_quantiles), np.asarray(texture.kernel),
                     texture.export_knee)
     return speckle
+
+
+def with_export_knee(texture: SensorTexture, images: list[np.ndarray], seed: int = 0) -> SensorTexture:
+    """`texture` with its export knee matched around the local means of `images` (frames scaled to their maximum),
+    as `fit_texture` matches it: for a texture fitted before the knee existed."""
+    chosen = [image.astype(np.float32) for image in _fit_frames(images, TILE)]
+    knee = _new_speckle_field(texture).match_export_knee(chosen, [local_mean(image) for image in chosen], seed)
+    return dataclasses.replace(texture, export_knee=_rounded(np.array([knee]))[0])
 
 
 def local_mean(image: np.ndarray) -> np.ndarray:
@@ -230,6 +244,8 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     if texture.row_gain_log_quantiles:
         table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
         row_gain = np.exp(np.interp(rng.random(level.shape[0]), np.linspace(0.0, 1.0, table.size), table))
-    field = _learned_generator(learned) if learned is not None else _speckle_field(texture)
-    sample = field.sample(level[None], generator, row_gain)[0]
+    if learned is not None:
+        sample = _learned_generator(learned).sample(level[None], generator, row_gain, texture.export_knee)[0]
+    else:
+        sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
     return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
