@@ -14,7 +14,7 @@ import pytest
 from sonar_realism.cli import main as cli_main
 from sonar_realism.errors import ConfigError
 from sonar_realism.io import read_frames
-from sonar_realism.sim.calibrate import MIN_FRAMES, CalibrateConfig, _match_onsets, calibrate
+from sonar_realism.sim.calibrate import MIN_FRAMES, CalibrateConfig, calibrate, match_onsets
 from sonar_realism.sim.calibrated import SeabedLook, make_patch, simulate_calibrated
 from sonar_realism.sim.calibration import (
     CALIBRATION_VERSION,
@@ -81,12 +81,12 @@ def test_onset_match_scales_height_by_the_median_and_heave_and_pitch_by_the_spre
     rng = np.random.default_rng(0)
     real, sim = 2.0 * (1 + 0.1 * rng.standard_normal(400)), 2.5 * (1 + 0.2 * rng.standard_normal(400))
     before = truth().mounting
-    after = _match_onsets(truth(), real, sim, spread=True).mounting
+    after = match_onsets(truth(), real, sim, spread=True).mounting
     assert after.height_m.value == pytest.approx(before.height_m.value * 0.8, rel=0.05)
     for name in ("heave_sd_m", "pitch_sd_deg"):
         assert getattr(after, name).value == pytest.approx(getattr(before, name).value * 0.5, rel=0.2)
     assert after.tilt_deg == before.tilt_deg
-    assert _match_onsets(truth(), real, sim, spread=False).mounting.heave_sd_m == before.heave_sd_m
+    assert match_onsets(truth(), real, sim, spread=False).mounting.heave_sd_m == before.heave_sd_m
 
 
 def test_calibration_file_round_trips_and_rejects_bad_content(calibrated, tmp_path: Path) -> None:

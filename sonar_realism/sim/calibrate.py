@@ -201,7 +201,7 @@ def _fixed(value: float) -> Estimate:
 # ----------------------------------------------------------------------------------------------- matching by simulation
 
 
-def _sim_images(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int, gain: bool = True,
+def sim_images(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int, gain: bool = True,
                 look: SeabedLook | None = None) -> list[np.ndarray]:
     out = []
     for index in range(n):
@@ -222,7 +222,7 @@ def _scaled(estimate: Estimate, factor: float) -> Estimate:
     return Estimate(estimate.value * factor, estimate.low * factor, estimate.high * factor)
 
 
-def _match_onsets(calibration: Calibration, real: np.ndarray, sim: np.ndarray, spread: bool) -> Calibration:
+def match_onsets(calibration: Calibration, real: np.ndarray, sim: np.ndarray, spread: bool) -> Calibration:
     """Height scaled so the simulated onsets' median is the real one; with `spread`, heave and pitch scaled
     together so their spread over frames is the real one too (both move the onset, so fitting each to the
     onset's spread alone counts it twice)."""
@@ -267,7 +267,7 @@ def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: Seabe
     width_bounds = ((max(0.2, measured_deg / 2), min(60.0, measured_deg * 2)) if resolved_width(real)
                     else (look.patch_width_deg, look.patch_width_deg))
     for _ in range(3):
-        sim = _seabed_summary(_seabed_table(_sim_images(calibration, chain, n, seed, gain=False, look=look)))
+        sim = _seabed_summary(_seabed_table(sim_images(calibration, chain, n, seed, gain=False, look=look)))
         if not math.isfinite(sim.contrast):
             break
         look = SeabedLook(float(np.clip(look.patch_contrast * real.contrast / max(sim.contrast, 1e-3), 0.0, 2.5)),
@@ -289,11 +289,11 @@ def _fixed_seabed(look: SeabedLook) -> SeabedTerms:
                        _fixed(look.dark_fraction), _fixed(look.roughness_m))
 
 
-def _noise(chain: Sequence[Effect]) -> TvgNoise:
+def noise_of(chain: Sequence[Effect]) -> TvgNoise:
     return next(e for e in chain if isinstance(e, TvgNoise))
 
 
-def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_near_zero: float, n: int, seed: int,
+def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_near_zero: float, n: int, seed: int,
                        steps: int = 8) -> list[Effect]:
     """The chain with the TVG noise amplitude whose simulated share of black pixels (at most 2 counts, drawn
     through the recording's texture and export) is the recording's: bisection in log amplitude within the
@@ -304,7 +304,7 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
     is returned as it is. The search stays within a factor FLOOR_RANGE of the fitted amplitude."""
     if real_near_zero < MIN_BLACK_SHARE:
         return list(chain)
-    fitted = max(_noise(chain).noise_amplitude, 1e-3)
+    fitted = max(noise_of(chain).noise_amplitude, 1e-3)
     low, high = TvgNoise.PARAM_BOUNDS["noise_amplitude"]
     low, high = math.log(max(low, 1e-3, fitted / FLOOR_RANGE)), math.log(min(high, fitted * FLOOR_RANGE))
 
@@ -314,7 +314,7 @@ def _match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_n
 
     for _ in range(steps):
         middle = (low + high) / 2
-        images = _sim_images(calibration, with_amplitude(middle), n, seed)
+        images = sim_images(calibration, with_amplitude(middle), n, seed)
         if np.mean([measure.near_zero_fraction(i) for i in images]) > real_near_zero:
             low = middle  # too many black pixels: more noise
         else:
@@ -337,7 +337,7 @@ def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_to
         return dataclasses.replace(calibration, texture=texture)
 
     def top(knee: float) -> float:
-        return float(np.median([top_ratio(i) for i in _sim_images(with_knee(knee), chain, n, seed)]))
+        return float(np.median([top_ratio(i) for i in sim_images(with_knee(knee), chain, n, seed)]))
 
     return with_knee(highest_knee_at(top, real_top, calibration.texture.export_knee, step=0.1, refine=4))
 
@@ -350,9 +350,9 @@ def _with_noise_floor_interval(fitted: tuple[FittedParameter, ...], calibration:
     the other intervals run under the catalogue's speckle, where the amplitude means another floor)."""
     shares = _estimate(np.array([measure.near_zero_fraction(i) for i in images]), np.mean, rng, config.bootstrap)
     # more black pixels wanted: less noise, so the high share gives the low amplitude
-    low, high = (_noise(_match_noise_floor(calibration, chain, share, config.mounting_frames, config.seed))
+    low, high = (noise_of(match_noise_floor(calibration, chain, share, config.mounting_frames, config.seed))
                  .noise_amplitude for share in (shares.high, shares.low))
-    value = _noise(chain).noise_amplitude
+    value = noise_of(chain).noise_amplitude
     interval = Estimate(value, min(low, value), max(high, value))
     return tuple(dataclasses.replace(p, estimate=interval) if (p.effect, p.name) == ("tvg_noise", "noise_amplitude")
                  else p for p in fitted)
@@ -531,8 +531,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
 
     # height: the simulated onset on the real one (same detector), when there is a real one to match
     for _ in range(2 if onset_measured else 0):
-        sim_onsets = _frame_onsets(_sim_images(calibration, defaults, n, seed, gain=False), bins)
-        calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=False)
+        sim_onsets = _frame_onsets(sim_images(calibration, defaults, n, seed, gain=False), bins)
+        calibration = match_onsets(calibration, real_onsets, sim_onsets, spread=False)
     mounting = calibration.mounting
     say(f"mounting: height {mounting.height_m.value:.2f} m, tilt {mounting.tilt_deg.value:.1f} deg")
     # seabed look matched under the current effects, then the effects refitted on top; twice, as they interact
@@ -574,13 +574,13 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         if rematch and onset_measured:
             # the mounting once more under the final chain, texture, export and gain, on more frames: the
             # onset's median and its spread over frames
-            sim_onsets = _frame_onsets(_sim_images(calibration, chain, config.mounting_frames, seed), mounting_bins)
-            calibration = _match_onsets(calibration, real_onsets, sim_onsets, spread=True)
+            sim_onsets = _frame_onsets(sim_images(calibration, chain, config.mounting_frames, seed), mounting_bins)
+            calibration = match_onsets(calibration, real_onsets, sim_onsets, spread=True)
         if calibration.texture is not None:
             # under the gain as it stands: the residual gain lifts or lowers the black water as well
-            chain = _match_noise_floor(calibration, chain, target.near_zero, config.mounting_frames, seed)
+            chain = match_noise_floor(calibration, chain, target.near_zero, config.mounting_frames, seed)
             calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
-        sim_fp = fingerprint(_sim_images(calibration, chain, n, seed))
+        sim_fp = fingerprint(sim_images(calibration, chain, n, seed))
         range_db = np.clip(np.array(calibration.range_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS,
                                                                               "range"), -12, 12)
         bearing_db = np.array(calibration.bearing_gain_db) + _gain_update(target, sim_fp, gamma, GAIN_KNOTS, "bearing")
@@ -593,7 +593,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         calibration = match_export_knee(calibration, chain, real_top, config.mounting_frames, seed)
     m = calibration.mounting
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
-        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {_noise(chain).noise_amplitude:.4f}"
+        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {noise_of(chain).noise_amplitude:.4f}"
         + (f"; export knee {calibration.texture.export_knee:.3f}" if calibration.texture is not None else ""))
 
     # intervals of the effect parameters: refits on bootstrap resamples of the recording, each against fresh sim frames
@@ -605,7 +605,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
 
     # before / after
     uncalibrated = [per_frame_rescaled(f.intensity) for f, _ in simulate("default", "all", n, seed)]
-    geometry_only = _sim_images(dataclasses.replace(calibration, texture=None), defaults, n, seed, gain=False)
+    geometry_only = sim_images(dataclasses.replace(calibration, texture=None), defaults, n, seed, gain=False)
     final = [per_frame_rescaled(f.intensity) for f, _ in simulate_calibrated(calibration, n, seed)]
     fingerprints = {"real": target, "uncalibrated sim": fingerprint(uncalibrated),
                     "geometry + default effects": fingerprint(geometry_only), "calibrated sim": fingerprint(final)}
