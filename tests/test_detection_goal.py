@@ -37,3 +37,16 @@ def test_the_same_training_set_and_seeds_pair_to_zero_difference_and_folds_cover
                        [0, 1], raw)
     assert folds.training_frames == 4 and len(folds.ap_minus_raw_per_seed) == 2
     assert 0.0 <= folds.ap_mean <= 1.0
+
+
+def test_the_goal_line_says_whether_the_paired_difference_is_beyond_its_standard_error() -> None:
+    def result(method: str, aps: tuple[float, ...], raw: tuple[float, ...]) -> goal.MethodResult:
+        paired = tuple(a - b for a, b in zip(aps, raw, strict=True))
+        return goal.MethodResult(method, 10, 10, aps, aps, aps, 1.0, paired)
+
+    raw = (0.17, 0.03, 0.01, 0.14, 0.01)
+    noisy = result("noisy", (0.09, 0.05, 0.06, 0.04, 0.02), raw)  # the session's first five seeds: -0.021
+    clear = result("clear", tuple(a + 0.05 for a in raw), raw)
+    lines = goal.goal_lines([result(goal.RAW, raw, raw), noisy, clear])
+    assert "NOT met" in lines[0] and "within one standard error" in lines[0]
+    assert "met" in lines[1] and "beyond one standard error" in lines[1] and "+0.050" in lines[1]
