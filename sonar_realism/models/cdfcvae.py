@@ -385,7 +385,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
         raise FormatError(str(path), "file", f"not a readable safetensors file ({exc})") from exc
     model = CDFCVAE(cfg)
     expected = model.state_dict()
-    if "texture.export_knee" in expected and "texture.export_knee" not in tensors and cfg.texture == "speckle":
+    if "texture.export_knee" in expected and "texture.export_knee" not in tensors:
         # a speckle layer fitted before the export knee exported with a hard clip at full scale: it keeps doing so
         tensors["texture.export_knee"] = torch.ones(())
     missing = sorted(set(expected) - set(tensors))

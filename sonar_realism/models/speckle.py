@@ -122,7 +122,7 @@ class SpeckleField(nn.Module):
         every knee tried."""
         if not self.is_fitted:
             raise ConfigError("texture: fit the speckle statistics before matching the export")
-        picked = np.linspace(0, len(images) - 1, min(GRAIN_MATCH_FRAMES, len(images))).astype(int)
+        picked = _matched_frames(len(images))
         target = float(np.median([top_ratio(images[i]) for i in picked]))
         generator = torch.Generator().manual_seed(seed)
         raw = [self._speckled(np.ascontiguousarray(means[i], np.float32)[None], generator)[0] for i in picked]
@@ -143,7 +143,7 @@ class SpeckleField(nn.Module):
         [GRAIN_GROUPS, 2]. A kernel already as correlated as the frames is left as it is."""
         if not self.is_fitted:
             raise ConfigError("texture: fit the speckle statistics before matching their grain")
-        picked = np.linspace(0, len(images) - 1, min(GRAIN_MATCH_FRAMES, len(images))).astype(int)
+        picked = _matched_frames(len(images))
         images = [images[i] for i in picked]
         means = [np.ascontiguousarray(means[i], np.float32) for i in picked]
         groups = [(self.level_bins(torch.from_numpy(mean)) // (LEVEL_BINS // GRAIN_GROUPS)).numpy() for mean in means]
@@ -250,6 +250,11 @@ def export_like_sensor(image: torch.Tensor, row_gain: np.ndarray | None = None, 
     image = compress_top(image, knee).clamp(max=1.0)
     peak = image.flatten(1).amax(dim=1).clamp_min(1e-6)
     return (torch.round(image * (EXPORT_LEVELS / peak)[:, None, None]) / EXPORT_LEVELS).numpy()
+
+
+def _matched_frames(n: int) -> np.ndarray:
+    """Indices of the frames the grain and export matches sample: GRAIN_MATCH_FRAMES evenly spaced of n."""
+    return np.linspace(0, n - 1, min(GRAIN_MATCH_FRAMES, n)).astype(int)
 
 
 def _widened(kernels: np.ndarray, widths: np.ndarray) -> np.ndarray:

@@ -202,13 +202,21 @@ def _fixed(value: float) -> Estimate:
 
 
 def sim_images(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int, gain: bool = True,
-                look: SeabedLook | None = None) -> list[np.ndarray]:
-    out = []
-    for index in range(n):
-        clean, _ = calibrated_view(calibration, seed, index, look)
-        frame = finish(calibration, clean, chain, np.random.default_rng([seed, index]), gain=gain)
-        out.append(per_frame_rescaled(frame.intensity))
-    return out
+               look: SeabedLook | None = None) -> list[np.ndarray]:
+    return finished_images(calibration, clean_views(calibration, n, seed, look), chain, seed, gain)
+
+
+def clean_views(calibration: Calibration, n: int, seed: int, look: SeabedLook | None = None) -> list[SonarImage]:
+    """The first n clean calibrated frames of `seed`: what a search over export-side terms (noise floor, export
+    knee) renders once and finishes under each trial."""
+    return [calibrated_view(calibration, seed, index, look)[0] for index in range(n)]
+
+
+def finished_images(calibration: Calibration, clean: Sequence[SonarImage], chain: Sequence[Effect], seed: int,
+                    gain: bool = True) -> list[np.ndarray]:
+    """`clean` through `finish` (effects, residual gain, texture, export), rescaled per frame like the recording."""
+    return [per_frame_rescaled(finish(calibration, frame, chain, np.random.default_rng([seed, index]),
+                                      gain=gain).intensity) for index, frame in enumerate(clean)]
 
 
 def _frame_onsets(images: Sequence[np.ndarray], bins: Sequence[float]) -> np.ndarray:
@@ -294,7 +302,7 @@ def noise_of(chain: Sequence[Effect]) -> TvgNoise:
 
 
 def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_near_zero: float, n: int, seed: int,
-                       steps: int = 8) -> list[Effect]:
+                      steps: int = 8) -> list[Effect]:
     """The chain with the TVG noise amplitude whose simulated share of black pixels (at most 2 counts, drawn
     through the recording's texture and export) is the recording's: bisection in log amplitude within the
     effect's search bounds (more noise, fewer black pixels). The effect fit sets the amplitude under the
@@ -307,6 +315,7 @@ def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_ne
     fitted = max(noise_of(chain).noise_amplitude, 1e-3)
     low, high = TvgNoise.PARAM_BOUNDS["noise_amplitude"]
     low, high = math.log(max(low, 1e-3, fitted / FLOOR_RANGE)), math.log(min(high, fitted * FLOOR_RANGE))
+    clean = clean_views(calibration, n, seed)  # the noise is drawn in `finish`: the scenes stay
 
     def with_amplitude(log_amplitude: float) -> list[Effect]:
         return [dataclasses.replace(e, noise_amplitude=round(math.exp(log_amplitude), 5))
@@ -314,7 +323,7 @@ def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_ne
 
     for _ in range(steps):
         middle = (low + high) / 2
-        images = sim_images(calibration, with_amplitude(middle), n, seed)
+        images = finished_images(calibration, clean, with_amplitude(middle), seed)
         if np.mean([measure.near_zero_fraction(i) for i in images]) > real_near_zero:
             low = middle  # too many black pixels: more noise
         else:
@@ -323,7 +332,7 @@ def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_ne
 
 
 def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_top: float, n: int,
-                       seed: int) -> Calibration:
+                      seed: int) -> Calibration:
     """The calibration with the highest export knee at which its simulated frames (texture, gain and export
     included) have the recording's median ratio of the 99.9th percentile to the maximum (`speckle_fit.top_ratio`,
     `highest_knee_at`), searched down from the knee the texture fit found around the recording's own local means.
@@ -331,13 +340,14 @@ def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_to
     highlights, the residual gain): under the texture fit's knee the calibrated Oculus sim still put 0.05 % of
     its pixels at 255, where the recording has one or two per frame."""
     assert calibration.texture is not None
+    clean = clean_views(calibration, n, seed)  # the knee changes the export only
 
     def with_knee(knee: float) -> Calibration:
         texture = dataclasses.replace(calibration.texture, export_knee=round(knee, 4))
         return dataclasses.replace(calibration, texture=texture)
 
     def top(knee: float) -> float:
-        return float(np.median([top_ratio(i) for i in sim_images(with_knee(knee), chain, n, seed)]))
+        return float(np.median([top_ratio(i) for i in finished_images(with_knee(knee), clean, chain, seed)]))
 
     return with_knee(highest_knee_at(top, real_top, calibration.texture.export_knee, step=0.1, refine=4))
 
