@@ -1,4 +1,5 @@
-"""translator: simulated frames in, n cDFCVAE samples per frame out ([n, ranges, beams] float32 in [0, 1])."""
+"""translator: simulated frames in, n cDFCVAE samples per frame out ([n, ranges, beams]; 8-bit
+samples from a checkpoint with a texture layer, docs/nodes.md)."""
 
 from __future__ import annotations
 

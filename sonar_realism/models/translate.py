@@ -28,6 +28,7 @@ from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
 from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
 from sonar_realism.models.datasets import from_model_grid, to_model_grid
 from sonar_realism.models.device import pick_device
+from sonar_realism.models.speckle_fit import EXPORT_LEVELS
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "cdfcvae_default.safetensors"
 # Frames encoded per forward pass: bounds memory at n samples each (decodes = chunk × n).
@@ -60,7 +61,8 @@ class Translator:
 
     def translate(self, frames: Sequence[SonarImage], n: int, temperature: float = 1.0,
                   seed: int | None = None) -> list[SonarImage]:
-        """n samples of each frame, each output on its input's geometry: float32 [n, R, B] in [0, 1]."""
+        """n samples of each frame, each output on its input's geometry, [n, R, B]: with a texture layer and
+        temperature > 0 the sensor's 8-bit export (uint8, intensity_scale 255), else float32 in [0, 1]."""
         if n < 1:
             raise ConfigError(f"n: need at least one sample, got {n}")
         if not np.isfinite(temperature) or temperature < 0:
@@ -103,9 +105,13 @@ class Translator:
         meta["provenance"] = {**meta.get("provenance", {}), "translator": provenance} \
             if isinstance(meta.get("provenance"), dict) else {"translator": provenance}
         intensity = np.clip(from_model_grid(frame, samples), 0.0, 1.0)
-        if texture_generator is not None:
-            intensity = self.model.texture.sample(intensity, texture_generator)
-        return frame.replace(intensity=intensity, intensity_scale=1.0, meta=meta)
+        if texture_generator is None:
+            return frame.replace(intensity=intensity, intensity_scale=1.0, meta=meta)
+        # The texture's export is the sensor's 8-bit output (EXPORT_LEVELS steps of the frame's maximum), so it
+        # travels as uint8, exactly and in a quarter of float32's bytes, as the calibrated simulator's frames do.
+        exported = self.model.texture.sample(intensity, texture_generator)
+        return frame.replace(intensity=np.rint(exported * EXPORT_LEVELS).astype(np.uint8),
+                             intensity_scale=float(EXPORT_LEVELS), meta=meta)
 
 
 def load_translator(path: str | Path, device: str = "auto") -> Translator | CycleGANTranslator:
