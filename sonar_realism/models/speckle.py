@@ -239,6 +239,12 @@ def compress_top(image: torch.Tensor, knee: float) -> torch.Tensor:
     return torch.where(image > knee, knee + span * torch.tanh((image - knee) / span), image)
 
 
+def as_sensor_bytes(exported: np.ndarray) -> np.ndarray:
+    """An export (`export_like_sensor`: EXPORT_LEVELS steps of [0, 1]) as the sensor's 8-bit samples, exactly;
+    full scale is EXPORT_LEVELS (the frame's `intensity_scale`)."""
+    return np.rint(exported * EXPORT_LEVELS).astype(np.uint8)
+
+
 def export_like_sensor(image: torch.Tensor, row_gain: np.ndarray | None = None, knee: float = 1.0) -> np.ndarray:
     """Textured frames [n, H, W] in full-scale units -> float32 as the real export: `row_gain` [H] multiplies
     each range row, values above `knee` are compressed towards full scale (`compress_top`) and clip there (a

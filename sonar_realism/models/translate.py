@@ -28,6 +28,7 @@ from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
 from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
 from sonar_realism.models.datasets import from_model_grid, to_model_grid
 from sonar_realism.models.device import pick_device
+from sonar_realism.models.speckle import as_sensor_bytes
 from sonar_realism.models.speckle_fit import EXPORT_LEVELS
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "cdfcvae_default.safetensors"
@@ -110,8 +111,7 @@ class Translator:
         # The texture's export is the sensor's 8-bit output (EXPORT_LEVELS steps of the frame's maximum), so it
         # travels as uint8, exactly and in a quarter of float32's bytes, as the calibrated simulator's frames do.
         exported = self.model.texture.sample(intensity, texture_generator)
-        return frame.replace(intensity=np.rint(exported * EXPORT_LEVELS).astype(np.uint8),
-                             intensity_scale=float(EXPORT_LEVELS), meta=meta)
+        return frame.replace(intensity=as_sensor_bytes(exported), intensity_scale=float(EXPORT_LEVELS), meta=meta)
 
 
 def load_translator(path: str | Path, device: str = "auto") -> Translator | CycleGANTranslator:

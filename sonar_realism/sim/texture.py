@@ -37,7 +37,7 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
-from sonar_realism.models.speckle_fit import GRAIN_GROUPS, KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE
+from sonar_realism.models.speckle_fit import EXPORT_LEVELS, GRAIN_GROUPS, KERNEL_SIZE, LEVEL_BINS, QUANTILES, TILE
 
 if TYPE_CHECKING:
     from sonar_realism.models.learned_texture import LearnedTexture
@@ -238,6 +238,8 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     the recording was (scaled to its maximum, 8-bit)."""
     import torch
 
+    from sonar_realism.models.speckle import as_sensor_bytes
+
     level = local_mean(frame.intensity.astype(np.float32))
     generator = torch.Generator().manual_seed(int(rng.integers(0, 2 ** 62)))
     row_gain = None
@@ -248,4 +250,4 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
         sample = _learned_generator(learned).sample(level[None], generator, row_gain, texture.export_knee)[0]
     else:
         sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
-    return frame.replace(intensity=np.rint(sample * 255.0).astype(np.uint8), intensity_scale=255.0)
+    return frame.replace(intensity=as_sensor_bytes(sample), intensity_scale=float(EXPORT_LEVELS))
