@@ -292,11 +292,6 @@ def resolved_width(stats: SeabedStats) -> bool:
     return stats.width_beams >= 2 * measure.LOCAL_BOX
 
 
-def _fixed_seabed(look: SeabedLook) -> SeabedTerms:
-    return SeabedTerms(_fixed(look.patch_contrast), _fixed(look.patch_scale_m), _fixed(look.patch_width_deg),
-                       _fixed(look.dark_fraction), _fixed(look.roughness_m))
-
-
 def noise_of(chain: Sequence[Effect]) -> TvgNoise:
     return next(e for e in chain if isinstance(e, TvgNoise))
 
@@ -530,7 +525,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
                       patch_scale_m=real_seabed.scale_rows * mean_bin,
                       patch_width_deg=float(np.clip(_width_deg(real_seabed, grid), 0.2, 60.0)),
                       dark_fraction=min(0.8, real_seabed.dark_fraction), roughness_m=0.01)
-    seabed = _fixed_seabed(look)
+    seabed = look.as_terms()
     defaults = [EFFECTS[name]() for name in PIPELINE_ORDER]
     calibration = Calibration(
         CALIBRATION_VERSION, source, len(frames), grid, mounting, seabed, targets,
@@ -549,7 +544,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     chain = defaults
     for rounds, step in ((config.rounds, 0.25), (1, 0.06)):
         look = _match_seabed(calibration, chain, look, real_seabed, n, seed)
-        calibration = dataclasses.replace(calibration, seabed=_fixed_seabed(look))
+        calibration = dataclasses.replace(calibration, seabed=look.as_terms())
         say(f"seabed: contrast {look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, "
             f"width {look.patch_width_deg:.1f} deg, dark {look.dark_fraction:.2f}")
         clean = [calibrated_view(calibration, seed, i)[0] for i in range(n)]
@@ -566,7 +561,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         # the texture's grain differs from the catalogue speckle's (long along range at dark levels), which
         # changes the measured patchiness: the seabed look matched again under it
         look = _match_seabed(calibration, chain, look, real_seabed, n, seed)
-        calibration = dataclasses.replace(calibration, seabed=_fixed_seabed(look))
+        calibration = dataclasses.replace(calibration, seabed=look.as_terms())
         say(f"texture: the recording's speckle fitted (sim/texture.py); seabed under it: contrast "
             f"{look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, width {look.patch_width_deg:.1f} deg, "
             f"dark {look.dark_fraction:.2f}")

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from sonar_realism.frames import SonarImage, uniform_azimuths
-from sonar_realism.sim.calibration import Calibration, GridMode
+from sonar_realism.sim.calibration import Calibration, Estimate, GridMode, SeabedTerms
 from sonar_realism.sim.effects import Effect, GammaQuantization, apply_effects, resolve_effects
 from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
@@ -51,11 +51,14 @@ class SeabedLook:
     dark_fraction: float
     roughness_m: float
 
+    @classmethod
+    def of(cls, terms: SeabedTerms) -> SeabedLook:
+        """The terms' fitted values."""
+        return cls(**{f.name: getattr(terms, f.name).value for f in dataclasses.fields(cls)})
 
-def seabed_look(calibration: Calibration) -> SeabedLook:
-    s = calibration.seabed
-    return SeabedLook(s.patch_contrast.value, s.patch_scale_m.value, s.patch_width_deg.value, s.dark_fraction.value,
-                      s.roughness_m.value)
+    def as_terms(self) -> SeabedTerms:
+        """These values as seabed terms without an interval (a look being fitted has none yet)."""
+        return SeabedTerms(**{name: Estimate(value, value, value) for name, value in dataclasses.asdict(self).items()})
 
 
 def sensor_for(mode: GridMode, vertical_fov_deg: float) -> SensorConfig:
@@ -149,7 +152,7 @@ def calibrated_view(calibration: Calibration, seed: int, index: int, look: Seabe
     height = max(0.05, m.height_m.value + m.heave_sd_m.value * float(rng.standard_normal()))
     tilt = math.radians(m.tilt_deg.value + m.pitch_sd_deg.value * float(rng.standard_normal()))
     pose = Pose(0.0, 0.0, height, yaw=float(rng.uniform(0, 2 * math.pi)), tilt=tilt)
-    seabed = make_patch(rng, 2 * (mode.max_range_m + 1.0), look or seabed_look(calibration))
+    seabed = make_patch(rng, 2 * (mode.max_range_m + 1.0), look or SeabedLook.of(calibration.seabed))
     maker = _ObjectMaker(seabed, rng)
     if rng.random() < calibration.targets.present_fraction.value:
         _place_target(maker, rng, calibration, pose, mode)
