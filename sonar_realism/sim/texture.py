@@ -129,10 +129,8 @@ def fit_learned_texture(images: list[np.ndarray], seed: int = 0, steps: int = DE
     from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
 
     schedule = TextureFitConfig(steps=steps)
-    chosen = _fit_frames(images, schedule.crop)
     module = LearnedTexture()
-    record = module.fit([image.astype(np.float32) for image in chosen], [local_mean(image) for image in chosen], seed,
-                        schedule, progress)
+    record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress)
     encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
     return LearnedSensorTexture(encoded, record.steps, round(record.critic_loss, 4))
 
@@ -155,8 +153,7 @@ def _new_speckle_field(texture: SensorTexture) -> SpeckleField:
 def with_export_knee(texture: SensorTexture, images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     """`texture` with its export knee matched around the local means of `images` (frames scaled to their maximum),
     as `fit_texture` matches it: for a texture fitted before the knee existed."""
-    chosen = [image.astype(np.float32) for image in _fit_frames(images, TILE)]
-    knee = _new_speckle_field(texture).match_export_knee(chosen, [local_mean(image) for image in chosen], seed)
+    knee = _new_speckle_field(texture).match_export_knee(*_fit_pairs(images), seed)
     return dataclasses.replace(texture, export_knee=_rounded(np.array([knee]))[0])
 
 
@@ -217,13 +214,20 @@ def _fit_frames(images: list[np.ndarray], side: int) -> list[np.ndarray]:
     return [usable[i] for i in np.linspace(0, len(usable) - 1, min(FIT_FRAMES, len(usable))).astype(int)]
 
 
+def _fit_pairs(images: list[np.ndarray], side: int = TILE) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The frames a texture is fitted and its export knee matched on (`_fit_frames`), float32, and their local
+    means."""
+    chosen = [image.astype(np.float32) for image in _fit_frames(images, side)]
+    return chosen, [local_mean(image) for image in chosen]
+
+
 def fit_texture(images: list[np.ndarray], seed: int = 0) -> SensorTexture:
     """Fit on real frames scaled to their maximum, [ranges, beams] at the sensor's resolution."""
-    chosen = _fit_frames(images, TILE)
+    chosen, means = _fit_pairs(images)
     from sonar_realism.models.speckle import SpeckleField
 
     speckle = SpeckleField()
-    speckle.fit([image.astype(np.float32) for image in chosen], [local_mean(image) for image in chosen], seed)
+    speckle.fit(chosen, means, seed)
     texture = SensorTexture(_rounded(speckle.level_edges.numpy()), _rounded(speckle.ratio_quantiles.numpy()),
                             _rounded(speckle.kernel.numpy()), fit_row_gain(chosen),
                             _rounded(speckle.export_knee.numpy()[None])[0])
