@@ -137,15 +137,17 @@ class LearnedTexture(nn.Module):
 
     @torch.no_grad()
     def sample(self, mean: np.ndarray, generator: torch.Generator | None,
-               row_gain: np.ndarray | None = None, knee: float = 1.0) -> np.ndarray:
+               row_gain: np.ndarray | None = None, knee: float | None = None) -> np.ndarray:
         """Textured, max-scaled, 8-bit samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W] in full-scale
-        units; `row_gain` [H] and the export's `knee` as `export_like_sensor` takes them."""
+        units; `row_gain` [H] and the export's `knee` as `SpeckleField.sample` takes them (None: the hard clip
+        the generator was fitted under)."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's learned texture was never fitted")
         device = self.fitted.device
         mean_t = torch.from_numpy(np.ascontiguousarray(mean, np.float32))[:, None].to(device)
         position = range_position(*mean_t.shape[-2:]).to(device).expand(mean_t.shape[0], -1, -1, -1)
-        return export_like_sensor(self._speckled(mean_t, position, generator)[:, 0].float().cpu(), row_gain, knee)
+        return export_like_sensor(self._speckled(mean_t, position, generator)[:, 0].float().cpu(), row_gain,
+                                  1.0 if knee is None else knee)
 
     def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0,
             schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> TextureFitRecord:

@@ -212,16 +212,18 @@ class SpeckleField(nn.Module):
         return torch.take(self._dense_quantiles, bins * DENSE_STEPS + step.long())
 
     def sample(self, mean: np.ndarray, generator: torch.Generator | None,
-               row_gain: np.ndarray | None = None) -> np.ndarray:
+               row_gain: np.ndarray | None = None, knee: float | None = None) -> np.ndarray:
         """Speckled, max-scaled, 8-bit-quantised samples float32 [n, H, W] in [0, 1] of mean fields [n, H, W];
-        `row_gain` [H] multiplies each range row before the export's scaling (a sensor's gain per range sample).
+        `row_gain` [H] multiplies each range row before the export's scaling (a sensor's gain per range sample);
+        `knee` is the export's (`compress_top`; None: the one fitted with these statistics).
         The mean is in full-scale units (1.0 is the export's 255, which no frame the statistics were fitted on
         exceeds): the speckled value clips there, as a sensor's 8-bit output does, before the export scales the
         frame to its maximum. Scaling by an unclipped speckle peak instead would darken the whole frame by it
         (the translator's output median fell 30-45 % below its decoded level that way until 2026-11-23)."""
         if not self.is_fitted:
             raise ConfigError("texture: this checkpoint's speckle statistics were never fitted")
-        return export_like_sensor(self._speckled(mean, generator), row_gain, float(self.export_knee))
+        knee = float(self.export_knee) if knee is None else knee
+        return export_like_sensor(self._speckled(mean, generator), row_gain, knee)
 
     def _speckled(self, mean: np.ndarray, generator: torch.Generator | None) -> torch.Tensor:
         """Mean fields [n, H, W] times a draw of the speckle ratio, in full-scale units, before the export."""

@@ -547,7 +547,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         calibration = dataclasses.replace(calibration, seabed=look.as_terms())
         say(f"seabed: contrast {look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, "
             f"width {look.patch_width_deg:.1f} deg, dark {look.dark_fraction:.2f}")
-        clean = [calibrated_view(calibration, seed, i)[0] for i in range(n)]
+        clean = clean_views(calibration, n, seed)
         chain, _ = fit(clean, target, seed, rounds, log=log, start=chain, step=step)
         calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
     # the recording's own texture replaces the catalogue's speckle from here on (the effects were fitted with
@@ -638,7 +638,7 @@ def _effect_intervals(calibration: Calibration, chain: list[Effect], images: lis
     for draw in range(config.effect_bootstrap):
         resample = [images[i] for i in rng.integers(0, len(images), len(images))]
         sim_seed = int(np.random.SeedSequence([config.seed, 1 + draw]).generate_state(1)[0])
-        clean = [calibrated_view(calibration, sim_seed, i)[0] for i in range(n)]
+        clean = clean_views(calibration, n, sim_seed)
         refit, _ = fit(clean, fingerprint(resample), sim_seed, rounds=2, start=chain, step=0.25)
         by_name = {e.name: e for e in refit}
         for e, p in values:

@@ -250,8 +250,6 @@ def apply_texture(texture: SensorTexture, frame: SonarImage, rng: np.random.Gene
     if texture.row_gain_log_quantiles:
         table = np.asarray(texture.row_gain_log_quantiles, dtype=np.float32)
         row_gain = np.exp(np.interp(rng.random(level.shape[0]), np.linspace(0.0, 1.0, table.size), table))
-    if learned is not None:
-        sample = _learned_generator(learned).sample(level[None], generator, row_gain, texture.export_knee)[0]
-    else:
-        sample = _speckle_field(texture).sample(level[None], generator, row_gain)[0]
+    field = _learned_generator(learned) if learned is not None else _speckle_field(texture)
+    sample = field.sample(level[None], generator, row_gain, texture.export_knee)[0]
     return frame.replace(intensity=as_sensor_bytes(sample), intensity_scale=float(EXPORT_LEVELS))
