@@ -416,3 +416,28 @@ def test_the_fit_frames_are_a_fair_sample_of_a_varied_set():
     assert fitted["noise_amplitude"] == pytest.approx(0.1, abs=0.05)
     assert abs(fitted["residual_ramp_db"]) < 6.0
     assert result.gap_closed > 0.6
+
+
+def test_a_rival_the_pick_is_not_told_apart_from_makes_the_step_ambiguous_however_often_the_pick_wins():
+    # the pick wins every resample, but by less than the least gain worth naming: "one of these", not one name
+    steady = (Alternative("motion_blur", 0.40, 1.0), Alternative("range_blur", 0.41, 0.0, separated=False),
+              Alternative("speckle", 0.9, 0.0))
+    path = [Step("start", "none", 1.0), Step("add", "motion_blur", 0.40, steady)]
+    groups = _ambiguous_groups(path, 1.0, threshold=0.2, selected=["motion_blur"])
+    assert [[a.effect for a in g.effects] for g in groups] == [["motion_blur", "range_blur"]]
+    told_apart = (steady[0], Alternative("range_blur", 0.41, 0.0), steady[2])
+    assert _ambiguous_groups([path[0], Step("add", "motion_blur", 0.40, told_apart)], 1.0, threshold=0.2,
+                             selected=["motion_blur"]) == ()
+
+
+def test_a_range_blur_is_reported_as_a_range_blur_or_a_surge_smear_not_as_one_confident_name():
+    # both smooth along range; the surge's box fits this Gaussian blur a little better in every resample, by
+    # less than the least gain worth naming
+    sim, real = sim_frames(24, seed=1), sim_frames(24, seed=2)
+    blur = make_effect("range_blur", resolution_m=0.25, sidelobe_db=-30.0)
+    real = [apply_effects(f, [blur], np.random.default_rng(i)) for i, f in enumerate(real)]
+    result = diagnose(sim, real, dataclasses.replace(FAST, effects=("range_blur", "motion_blur", "speckle"),
+                                                     search=SearchConfig()))
+    assert result.verdict == "ambiguous"
+    assert {a.effect for a in result.ambiguous[0].effects} == {"range_blur", "motion_blur"}
+    assert result.selected[0] in {"range_blur", "motion_blur"}

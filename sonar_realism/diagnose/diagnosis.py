@@ -271,20 +271,24 @@ def _selected_effects(selection: Selection, gap_before: float) -> tuple[Selected
 
 def _ambiguous_groups(path: Sequence[Step], gap_before: float, threshold: float,
                       selected: Sequence[str]) -> tuple[AmbiguousGroup, ...]:
-    """Steps that named a selected effect but could not tell it from others: the pick won fewer than 1 - `threshold`
-    of the resamples (one rival or several together winning more than `threshold`). The group is the pick
-    and every rival that won at least half of `threshold` (at least the strongest), each with the share of the gap
-    before it would close at that step. A step whose pick was later pruned or replaced by a gain pattern names
-    nothing."""
+    """Steps that named a selected effect but could not tell it from others: a rival the pick was not told apart
+    from (`Alternative.separated`), or the pick winning fewer than 1 - `threshold` of the resamples (one rival or
+    several together winning more than `threshold`). The group is the pick, every rival not told apart and, when
+    the pick wins too rarely, every rival that won at least half of `threshold` (at least the strongest), each with
+    the share of the gap before it would close at that step. A step whose pick was later pruned or replaced by a
+    gain pattern names nothing."""
     groups = []
     previous = gap_before
     for index, step in enumerate(path):
         if step.action == "add" and step.effect in selected:
             pick = next(a for a in step.alternatives if a.effect == step.effect)
-            rivals = sorted((a for a in step.alternatives if a.effect != step.effect and a.frequency > 0),
-                            key=lambda a: -a.frequency)
-            if rivals and pick.frequency < 1.0 - threshold:
-                members = (pick, *([a for a in rivals if a.frequency >= threshold / 2] or rivals[:1]))
+            rivals = sorted((a for a in step.alternatives if a.effect != step.effect), key=lambda a: a.gap)
+            close = {a.effect for a in rivals if not a.separated}
+            winning = sorted((a for a in rivals if a.frequency > 0), key=lambda a: -a.frequency)
+            if winning and pick.frequency < 1.0 - threshold:
+                close |= {a.effect for a in winning if a.frequency >= threshold / 2} or {winning[0].effect}
+            if close:
+                members = (pick, *(a for a in rivals if a.effect in close))
                 shares = tuple((previous - a.gap) / gap_before if gap_before > 0 else 0.0 for a in members)
                 groups.append(AmbiguousGroup(index, members, shares))
         previous = step.gap

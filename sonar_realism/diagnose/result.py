@@ -103,11 +103,14 @@ class RankedEffect:
 @dataclass(frozen=True)
 class Alternative:
     """A candidate set judged at one selection step: `effect` added on top of the chosen ones, the held-out gap
-    it gives, and how often it was the best of the step's candidates over bootstrap resamples."""
+    it gives, how often it was the best of the step's candidates over bootstrap resamples, and whether the step's
+    pick was told apart from it (`separated`: the pick's gap lower by the least gain worth naming, `min_gain` of
+    the gap before, at the selection's significance; always true of the pick itself)."""
 
     effect: str
     gap: float
     frequency: float
+    separated: bool = True
 
 
 @dataclass(frozen=True)

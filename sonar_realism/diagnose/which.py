@@ -536,15 +536,20 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             trials = [(gap_value, base, effect, solo, stats)
                       for (_, base, effect, solo), (gap_value, stats) in zip(shortlist, judged, strict=True)]
             frequency = _frequencies([t[4] for t in trials], problem, c, seed=c.seed + 600 + len(chosen))
-            alternatives = tuple(Alternative(t[3].ranked.name, t[0], float(f)) for t, f in
-                                 zip(trials, frequency, strict=True))
+            candidates = [(t[3].ranked.name, t[0], float(f), t[4]) for t, f in zip(trials, frequency, strict=True)]
         else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
             top = remaining[0]
             trials = [(top.ranked.gap_after, [], top.effect, top, top.stats)]
-            alternatives = tuple(Alternative(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency)
-                                 for s in remaining)
+            candidates = [(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency, s.stats) for s in remaining]
         best_gap, best_base, best_effect, best_solo, best_stats = min(trials, key=lambda t: t[0])
         best_name = best_solo.ranked.name
+        # a rival is told apart from the pick only at the resolution an effect is named at: the pick's gap lower
+        # than the rival's by the least gain worth naming, significantly (a surge smear and a range blur that
+        # both smooth along range differ by less, however steadily one of them wins the resamples)
+        alternatives = tuple(
+            Alternative(name, gap_value, frequency,
+                        name == best_name or lower_bound(stats, best_stats, 300 + len(chosen))[1] > least_gain)
+            for name, gap_value, frequency, stats in candidates)
         if current - best_gap < least_gain:
             stopped = f"no remaining effect lowers the held-out gap by {c.min_gain:.0%} of the gap before"
             break
