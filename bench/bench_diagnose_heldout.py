@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 
 from sonar_realism.diagnose import DiagnoseConfig, diagnose
-from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, UNCATALOGUED, Place, apply_held_out
+from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, UNCATALOGUED, Implementation, Place, apply_held_out
 from sonar_realism.diagnose.scene_terms import SceneStart
+from sonar_realism.diagnose.tuning_forms import TUNING
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_to_grid
 from sonar_realism.sim import SensorConfig, simulate
@@ -151,7 +152,7 @@ def in_place(read: Read, place: Place) -> bool:
 def run_case(sim: list[SonarImage], real_source: list[SonarImage], implementation: str | None, mode: str,
              params: dict[str, float], config: DiagnoseConfig, seed: int, scene: SceneStart | None = None,
              ) -> dict[str, Any]:
-    entry = IMPLEMENTATIONS[implementation] if implementation else None
+    entry = (IMPLEMENTATIONS.get(implementation) or TUNING[implementation]) if implementation else None
     real = apply_held_out(real_source, implementation, params, seed) if implementation else real_source
     started = time.perf_counter()
     read = read_diagnosis(diagnose(sim, real, config, scene=scene))
@@ -187,12 +188,13 @@ def parse_settings(text: str) -> list[tuple[str, int, tuple[str, ...], bool]]:
     return out
 
 
-def implementations(first_only: bool, only: tuple[str, ...] = ()) -> list[str]:
-    """The implementations a setting runs: all, or the first form of each family (and every un-catalogued
-    effect); `only` keeps those whose name contains one of its strings."""
+def implementations(first_only: bool, only: tuple[str, ...] = (),
+                    registry: dict[str, Implementation] = IMPLEMENTATIONS) -> list[str]:
+    """The implementations of `registry` a setting runs: all, or the first form of each family (and every
+    un-catalogued effect); `only` keeps those whose name contains one of its strings."""
     seen: set[str] = set()
     keep = []
-    for name, entry in IMPLEMENTATIONS.items():
+    for name, entry in registry.items():
         if (not first_only or entry.family == UNCATALOGUED or entry.family not in seen) and (
                 not only or any(part in name for part in only)):
             keep.append(name)
@@ -202,19 +204,21 @@ def implementations(first_only: bool, only: tuple[str, ...] = ()) -> list[str]:
 
 def accuracy(settings: str, config: DiagnoseConfig, log: Callable[[str], None],
              keep: Callable[[list[dict[str, Any]]], None] = lambda rows: None, only: tuple[str, ...] = (),
-             scene: SceneStart | None = None) -> list[dict[str, Any]]:
-    """Every case of every setting; `keep` sees the rows so far after each case (a long run's partial results)."""
+             scene: SceneStart | None = None, registry: dict[str, Implementation] = IMPLEMENTATIONS,
+             ) -> list[dict[str, Any]]:
+    """Every case of every setting (implementations of `registry`: the held-out half, or TUNING); `keep` sees the
+    rows so far after each case (a long run's partial results)."""
     rows: list[dict[str, Any]] = []
     for scene_name, n, modes, first_only in parse_settings(settings):
         sim = clean_frames(scene_name, n, SIM_SEED)
         real_source = clean_frames(scene_name, n, REAL_SEED)
         draws = np.random.default_rng([2026, n, len(scene_name)])
         cases: list[tuple[str | None, str]] = [(None, "null")]
-        cases += [(name, mode) for mode in modes for name in implementations(first_only)]
-        kept = set(implementations(first_only, only))
+        cases += [(name, mode) for mode in modes for name in implementations(first_only, registry=registry)]
+        kept = set(implementations(first_only, only, registry))
         for index, (name, mode) in enumerate(cases):
             # every case draws, so a case run with --only gets the parameters and seed it has in the full run
-            params = IMPLEMENTATIONS[name].draw(mode, draws) if name else {}  # type: ignore[arg-type]
+            params = registry[name].draw(mode, draws) if name else {}  # type: ignore[arg-type]
             if name and name not in kept:
                 continue
             row = {"scene": scene_name, "frames": n,
@@ -377,6 +381,9 @@ def main() -> int:
     parser.add_argument("--only", default="", help="run only implementations whose name contains one of these "
                                                    "comma-separated strings (e.g. range_blur,column_stripes), with "
                                                    "the parameters they have in the full run")
+    parser.add_argument("--half", choices=("held-out", "tuning"), default="held-out",
+                        help="which implementations: the held-out half (never tuned against) or the tuning set "
+                             "(diagnose/tuning_forms.py)")
     parser.add_argument("--limits", action="store_true", help="detection-limit sweeps instead of the accuracy run")
     parser.add_argument("--repeats", type=int, default=3, help="repeats per sweep value (--limits)")
     parser.add_argument("--limit-frames", type=int, default=24, help="frames per set in the sweeps (--limits)")
@@ -403,7 +410,7 @@ def main() -> int:
         only = tuple(filter(None, (s.strip() for s in args.only.split(","))))
         scene = SceneStart.from_calibration(load_calibration(args.calibration)) if args.calibration else None
         rows = accuracy(args.settings or (QUICK_SETTINGS if args.quick else FULL_SETTINGS), config, log, keep, only,
-                        scene)
+                        scene, TUNING if args.half == "tuning" else IMPLEMENTATIONS)
         summary = summarise(rows)
         print_accuracy(summary)
     run_info = {"command": " ".join(sys.argv), "seconds": time.perf_counter() - started, "grid": list(GRID),

@@ -16,11 +16,12 @@ from sonar_realism.diagnose.heldout import (  # noqa: F401  (imported for their 
 )
 from sonar_realism.diagnose.heldout.base import (
     IMPLEMENTATIONS,
+    TUNING,
     UNCATALOGUED,
-    HeldOut,
+    Implementation,
     Param,
     Place,
     apply_held_out,
 )
 
-__all__ = ["IMPLEMENTATIONS", "UNCATALOGUED", "HeldOut", "Param", "Place", "apply_held_out"]
+__all__ = ["IMPLEMENTATIONS", "TUNING", "UNCATALOGUED", "Implementation", "Param", "Place", "apply_held_out"]

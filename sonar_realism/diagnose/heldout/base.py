@@ -8,8 +8,10 @@ Each implementation is a plain function `apply(x, frame, p, ping, instrument)`:
 
 Nobody tunes the diagnosis against these: they were written and committed before the diagnosis ever ran on them.
 Each one registers itself with `@held_out(family, form, ...)`, so adding one is adding a function in its family's
-file. `family` is a catalogue effect name, or UNCATALOGUED for effects the catalogue has no stage for (their right
-answer is "residual, at these places": `place` says where).
+file. A second *tuning* set of the same kind (`sonar_realism/diagnose/tuning_forms.py`, `@tuning_form`) lives in
+its own registry, `TUNING`: the diagnosis may be tuned against it, and adding to it never changes the held-out
+half's draws. `family` is a catalogue effect name, or UNCATALOGUED for effects the catalogue has no stage for
+(their right answer is "residual, at these places": `place` says where).
 
 Parameters are drawn in one of two modes, recorded with every case: "inside" keeps every parameter that has a
 catalogue counterpart (`Param.catalogue`) inside that parameter's PARAM_BOUNDS (the fit's search range) and the
@@ -60,7 +62,7 @@ class Place:
 
 
 @dataclass(frozen=True)
-class HeldOut:
+class Implementation:
     family: str
     form: str
     description: str
@@ -85,31 +87,45 @@ class HeldOut:
                 if param.catalogue and not bounds[param.catalogue][0] <= params[key] <= bounds[param.catalogue][1]]
 
 
-IMPLEMENTATIONS: dict[str, HeldOut] = {}
+IMPLEMENTATIONS: dict[str, Implementation] = {}  # the held-out half
+TUNING: dict[str, Implementation] = {}  # a second tuning set (beside diagnose/validation.py's alternatives)
 
 
 def held_out(family: str, form: str, place: Callable[[SonarImage, dict[str, float]], Place] | None = None,
              strength: str = "", **params: Param) -> Callable[[Apply], Apply]:
     """Register the decorated function as held-out implementation `family/form`."""
+    return _register(IMPLEMENTATIONS, family, form, place, strength, params)
+
+
+def tuning_form(family: str, form: str, place: Callable[[SonarImage, dict[str, float]], Place] | None = None,
+                strength: str = "", **params: Param) -> Callable[[Apply], Apply]:
+    """Register the decorated function as tuning implementation `family/form` (not held out)."""
+    return _register(TUNING, family, form, place, strength, params)
+
+
+def _register(registry: dict[str, Implementation], family: str, form: str,
+              place: Callable[[SonarImage, dict[str, float]], Place] | None, strength: str,
+              params: dict[str, Param]) -> Callable[[Apply], Apply]:
     def register(function: Apply) -> Apply:
-        entry = HeldOut(family, form, (function.__doc__ or "").strip().split("\n\n")[0], function, params, place,
-                        strength)
-        if entry.name in IMPLEMENTATIONS:
-            raise ConfigError(f"held-out implementation {entry.name} registered twice")
+        entry = Implementation(family, form, (function.__doc__ or "").strip().split("\n\n")[0], function, params,
+                               place, strength)
+        if entry.name in IMPLEMENTATIONS or entry.name in TUNING:
+            raise ConfigError(f"validation implementation {entry.name} registered twice")
         if family != UNCATALOGUED and family not in EFFECTS:
             raise ConfigError(f"held-out {entry.name}: {family!r} is not a catalogue effect")
         if (family == UNCATALOGUED) != (place is not None):
             raise ConfigError(f"held-out {entry.name}: un-catalogued effects (and only they) need a place")
-        IMPLEMENTATIONS[entry.name] = entry
+        registry[entry.name] = entry
         return function
     return register
 
 
 def apply_held_out(frames: list[SonarImage], name: str, params: dict[str, float], seed: int) -> list[SonarImage]:
-    """The "real" frames: `frames` with held-out implementation `name` applied (per-frame draws from `seed`)."""
-    if name not in IMPLEMENTATIONS:
-        raise ConfigError(f"no held-out implementation {name!r}; have {sorted(IMPLEMENTATIONS)}")
-    entry = IMPLEMENTATIONS[name]
+    """The "real" frames: `frames` with held-out (or tuning) implementation `name` applied (per-frame draws from
+    `seed`)."""
+    entry = IMPLEMENTATIONS.get(name) or TUNING.get(name)
+    if entry is None:
+        raise ConfigError(f"no validation implementation {name!r}; have {sorted(IMPLEMENTATIONS)} and {sorted(TUNING)}")
     out = []
     for index, frame in enumerate(frames):
         ping = np.random.default_rng([seed, index])

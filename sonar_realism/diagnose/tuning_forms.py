@@ -1,0 +1,223 @@
+"""A second tuning set for the diagnosis' validation: one more form per catalogued effect, beside the
+alternatives in `diagnose/validation.py`, written to differ from both the catalogue and those alternatives
+(another kernel shape, another noise law, another transfer curve). The diagnosis may be tuned against these; the
+held-out half (`diagnose/heldout/`) stays untouched. Run them with
+`python bench/bench_diagnose_heldout.py --half tuning`.
+
+| effect             | catalogue                                 | here                                               |
+|--------------------|-------------------------------------------|----------------------------------------------------|
+| speckle            | smoothed complex Gaussian x gamma texture | mean of a few exponential looks, box-correlated    |
+| beam_sidelobes     | sinc^2, sidelobes rescaled, flat floor    | Gaussian mainlobe + exponential skirt across beams |
+| range_blur         | Gaussian + two Gaussian sidelobes         | Lorentzian (Cauchy) power PSF along range          |
+| tvg_noise          | complex noise scaled by the TVG curve     | real noise on the amplitude, level linear in dB    |
+| elevation_spread   | two-way sinc^2 vertical pattern           | cos^m vertical pattern with a floor                |
+| multipath          | sharp copy at a fixed offset              | blurred, weaker copy at a fixed offset             |
+| motion_blur        | shear + box smears                        | shear + Gaussian smears                            |
+| ring_down          | exponential decay, per-ping beam ripple   | flat shoulder with a logistic fall, fixed ripple   |
+| interference       | arcs across the whole fan                 | partial arcs over part of the fan                  |
+| gamma_quantization | power law then 8-bit rounding             | two-slope linear transfer then 8-bit rounding      |
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from sonar_realism.diagnose.heldout.base import TUNING, Param, ar1, bin_m, fft_convolve, sin_step, tuning_form
+from sonar_realism.frames import SonarImage
+
+SOUND_SPEED_MPS = 1500.0
+__all__ = ["TUNING"]  # filled by the registrations below
+
+
+def _power_kernel_across(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Amplitude after convolving the power across beams with a centred odd `kernel` (sums to 1)."""
+    power = (x * x).astype(np.float64)
+    return np.sqrt(np.maximum(fft_convolve(power, kernel, 1, kernel.size // 2), 0.0)).astype(np.float32)
+
+
+@tuning_form("speckle", "multilook_box",
+             looks=Param((1.0, 2.0), (1.0, 4.0), integer=True),
+             cells_beams=Param((1.0, 3.0), (1.0, 5.0), "grain_beams", integer=True),
+             cells_ranges=Param((1.0, 3.0), (1.0, 5.0), "grain_ranges", integer=True))
+def multilook_box(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                  instrument: np.random.Generator) -> np.ndarray:
+    """Intensity speckle as the mean of `looks` independent looks, each the squared magnitude of a complex
+    white field averaged over a box of `cells_ranges` x `cells_beams` cells (a uniform resolution cell)."""
+    size = (int(p["cells_beams"]), int(p["cells_ranges"]))
+    speckle = np.zeros(x.shape, np.float32)
+    for _ in range(int(p["looks"])):
+        field = ping.standard_normal((2, *x.shape)).astype(np.float32)
+        look = sum(cv2.blur(part, size, borderType=cv2.BORDER_REFLECT_101) ** 2 for part in field)
+        speckle += look / max(float(look.mean()), 1e-12)
+    return (x * np.sqrt(speckle / p["looks"])).astype(np.float32)
+
+
+@tuning_form("beam_sidelobes", "exponential_skirt",
+             mainlobe_deg=Param((0.4, 2.0), (0.2, 4.0), "mainlobe_deg"),
+             skirt_db=Param((-24.0, -12.0), (-32.0, -8.0), "sidelobe_db"),
+             skirt_beams=Param((3.0, 12.0), (2.0, 25.0)))
+def exponential_skirt(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                      instrument: np.random.Generator) -> np.ndarray:
+    """Power pattern across beams: a Gaussian mainlobe of -3 dB width `mainlobe_deg` and, beside it, a skirt
+    that starts at `skirt_db` and falls off exponentially over `skirt_beams` beams (an aperture with random
+    phase errors: no nulls, no distinct sidelobes)."""
+    width = math.sin(math.radians(p["mainlobe_deg"])) / sin_step(frame)  # -3 dB width in beams
+    half = int(min(math.ceil(6 * p["skirt_beams"] + 3 * width), x.shape[1] - 1))
+    k = np.arange(-half, half + 1, dtype=np.float64)
+    main = np.exp(-4 * math.log(2) * (k / max(width, 1e-3)) ** 2)
+    skirt = 10 ** (p["skirt_db"] / 10) * np.exp(-(np.abs(k) - 1) / p["skirt_beams"])
+    kernel = np.where(np.abs(k) >= max(1.0, width / 2), np.maximum(main, skirt), main)
+    return _power_kernel_across(x, kernel / kernel.sum())
+
+
+@tuning_form("range_blur", "lorentzian",
+             resolution_m=Param((0.03, 0.25), (0.005, 0.5), "resolution_m"))
+def lorentzian(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+               instrument: np.random.Generator) -> np.ndarray:
+    """Power PSF along range with a Lorentzian (Cauchy) profile of FWHM `resolution_m`: a narrow core with
+    heavy tails (a receiver with a slow roll-off), truncated at 8 widths."""
+    width = max(p["resolution_m"] / bin_m(frame), 0.3)
+    half = int(min(math.ceil(8 * width), x.shape[0] - 1))
+    d = np.arange(-half, half + 1, dtype=np.float64)
+    kernel = 1.0 / (1.0 + (2 * d / width) ** 2)
+    power = (x * x).astype(np.float64)
+    return np.sqrt(np.maximum(fft_convolve(power, kernel / kernel.sum(), 0, half), 0.0)).astype(np.float32)
+
+
+@tuning_form("tvg_noise", "real_ramp_db",
+             noise_level=Param((0.04, 0.15), (0.01, 0.4), "noise_amplitude"),
+             slope_db=Param((6.0, 20.0), (0.0, 30.0)),
+             correlation=Param((0.0, 0.6), (0.0, 0.9)))
+def real_ramp_db(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                 instrument: np.random.Generator) -> np.ndarray:
+    """Receiver noise added to the detected amplitude (real, either sign, then rectified), its level rising
+    linearly in dB by `slope_db` across the range window as the TVG amplifies it, correlated along range
+    (AR(1), `correlation`) by the receiver's bandwidth."""
+    span = np.linspace(0.0, 1.0, x.shape[0])[:, None]
+    level = p["noise_level"] * 10 ** ((span - 1.0) * p["slope_db"] / 20)
+    noise = ar1(ping.standard_normal(x.shape), p["correlation"], axis=0)
+    return np.abs(x + level * noise).astype(np.float32)
+
+
+@tuning_form("elevation_spread", "cos_power",
+             beamwidth_deg=Param((8.0, 30.0), (4.0, 50.0), "beamwidth_deg"),
+             floor_db=Param((-35.0, -15.0), (-50.0, -10.0), "floor_db"))
+def cos_power(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+              instrument: np.random.Generator) -> np.ndarray:
+    """Two-way vertical pattern cos^m(elevation off the beam axis), m set so the power is half at
+    +-`beamwidth_deg`/2, never below `floor_db` (amplitude): every pixel weighted by the pattern at the elevation
+    a flat seabed at the frame's altitude and tilt is seen at."""
+    altitude = float(frame.meta.get("sonar_altitude_m", 2.0))
+    tilt = float(frame.meta.get("sonar_tilt_rad", math.radians(10.0)))
+    r = frame.ranges_m[:, None]
+    cos_b = np.cos(frame.azimuths_rad)[None, :]
+    # elevation phi (sonar frame, + up) of the seabed: r (sin(phi) cos(tilt) - cos(phi) cos(b) sin(tilt)) = -h
+    a, b = math.cos(tilt), cos_b * math.sin(tilt)
+    norm = np.sqrt(a * a + b * b)
+    q = np.clip(-altitude / (r * norm), -1.0, 1.0)
+    phi = np.arcsin(q) + np.arctan2(b, a)
+    half = math.radians(p["beamwidth_deg"]) / 2
+    m = math.log(0.5) / (2 * math.log(math.cos(half)))
+    weight = np.maximum(np.cos(np.clip(phi, -math.pi / 2, math.pi / 2)) ** m, 10 ** (p["floor_db"] / 20))
+    weight = np.where(r * norm >= altitude, weight, 10 ** (p["floor_db"] / 20))
+    return (x * weight).astype(np.float32)
+
+
+@tuning_form("multipath", "blurred_echo",
+             reflection=Param((0.35, 0.75), (0.2, 0.95), "reflection_coeff"),
+             offset_m=Param((1.0, 4.0), (0.4, 8.0), "ghost_offset_m"),
+             blur_bins=Param((1.0, 4.0), (0.5, 8.0)))
+def blurred_echo(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                 instrument: np.random.Generator) -> np.ndarray:
+    """A second path off a rough surface: each frame's own power again `offset_m` further, times
+    `reflection`^2, blurred by the surface's roughness (`blur_bins` along range, half that across beams)."""
+    shift = int(round(p["offset_m"] / bin_m(frame)))
+    power = (x * x).astype(np.float32)
+    ghost = np.zeros_like(power)
+    if shift < power.shape[0]:
+        ghost[shift:] = power[:power.shape[0] - shift]
+    sigma = p["blur_bins"]
+    ghost = cv2.GaussianBlur(ghost, (0, 0), sigmaX=max(sigma / 2, 0.3), sigmaY=sigma,
+                             borderType=cv2.BORDER_REFLECT_101)
+    return np.sqrt(power + p["reflection"] ** 2 * ghost).astype(np.float32)
+
+
+@tuning_form("motion_blur", "gaussian_smear",
+             yaw_rate_deg_s=Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s"),
+             surge_m_s=Param((0.2, 1.5), (0.0, 3.0), "surge_m_s"),
+             integration_s=Param((0.05, 0.25), (0.02, 0.4), "integration_s"))
+def gaussian_smear(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                   instrument: np.random.Generator) -> np.ndarray:
+    """The sonar turns at `yaw_rate_deg_s` and moves at `surge_m_s` while it averages over a window whose
+    weights are Gaussian (rms `integration_s` / 2) rather than flat; each row is also heard 2r/c later, so it is
+    turned further (a shear across beams)."""
+    yaw = math.radians(p["yaw_rate_deg_s"])
+    step = (frame.azimuths_rad[-1] - frame.azimuths_rad[0]) / max(x.shape[1] - 1, 1)
+    power = (x * x).astype(np.float32)
+    shift = yaw * 2 * frame.ranges_m / SOUND_SPEED_MPS / step  # beams, per row
+    cols = np.arange(x.shape[1], dtype=np.float32)[None, :] - shift[:, None].astype(np.float32)
+    rows = np.repeat(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape[1], axis=1)
+    power = cv2.remap(power, cols.astype(np.float32), rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    sigma_beams = abs(yaw) * p["integration_s"] / 2 / step
+    sigma_ranges = abs(p["surge_m_s"]) * p["integration_s"] / 2 / bin_m(frame)
+    if max(sigma_beams, sigma_ranges) > 0.1:
+        power = cv2.GaussianBlur(power, (0, 0), sigmaX=max(sigma_beams, 0.1), sigmaY=max(sigma_ranges, 0.1),
+                                 borderType=cv2.BORDER_REFLECT_101)
+    return np.sqrt(np.maximum(power, 0.0)).astype(np.float32)
+
+
+@tuning_form("ring_down", "logistic_shoulder", strength="amplitude",
+             amplitude=Param((0.15, 0.8), (0.05, 1.5), "amplitude"),
+             hold_m=Param((0.05, 0.3), (0.0, 0.8)),
+             fall_m=Param((0.01, 0.06), (0.005, 0.2), "decay_m"),
+             ripple=Param((0.05, 0.3), (0.0, 0.6)))
+def logistic_shoulder(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                      instrument: np.random.Generator) -> np.ndarray:
+    """The receiver is held near saturation by the transmit leak for `hold_m` of range, then recovers over
+    `fall_m` (a logistic shoulder, not an exponential), with a fixed per-beam leak spread `ripple` (the same
+    every ping: the elements' own coupling). Leak and echo add in power."""
+    d = (frame.ranges_m - frame.ranges_m[0])[:, None]
+    leak = p["amplitude"] / (1.0 + np.exp((d - p["hold_m"]) / p["fall_m"]))
+    beams = np.maximum(1.0 + p["ripple"] * instrument.standard_normal(x.shape[1]), 0.0)[None, :]
+    return np.sqrt(x * x + (leak * beams) ** 2).astype(np.float32)
+
+
+@tuning_form("interference", "partial_arcs",
+             rate_per_ping=Param((0.6, 2.5), (0.2, 5.0), "rate_per_ping"),
+             amplitude=Param((0.3, 0.9), (0.1, 1.5), "amplitude"),
+             thickness_m=Param((0.03, 0.15), (0.01, 0.4), "thickness_m"),
+             span=Param((0.2, 0.6), (0.1, 1.0)))
+def partial_arcs(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                 instrument: np.random.Generator) -> np.ndarray:
+    """Another source heard only through part of the array's view: per ping a Poisson number of arcs, each at a
+    random range, over a random run of `span` of the fan with tapered ends, Gaussian of FWHM `thickness_m` in
+    range, power `amplitude`^2 at its centre."""
+    power = (x * x).astype(np.float64)
+    n_beams = x.shape[1]
+    sigma = max(p["thickness_m"] / 2.355, 1e-3)
+    for _ in range(int(ping.poisson(p["rate_per_ping"]))):
+        at = ping.uniform(frame.ranges_m[0], frame.ranges_m[-1])
+        width = max(2, int(p["span"] * n_beams))
+        first = int(ping.integers(0, max(1, n_beams - width + 1)))
+        across = np.zeros(n_beams)
+        across[first:first + width] = np.hanning(width + 2)[1:-1]
+        along = np.exp(-0.5 * ((frame.ranges_m - at) / sigma) ** 2)
+        power += p["amplitude"] ** 2 * along[:, None] * across[None, :]
+    return np.sqrt(power).astype(np.float32)
+
+
+@tuning_form("gamma_quantization", "two_slope",
+             gain=Param((0.8, 3.0), (0.4, 6.0), "gain"),
+             knee_in=Param((0.05, 0.2), (0.02, 0.4)),
+             knee_out=Param((0.4, 0.7), (0.25, 0.85)))
+def two_slope(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+              instrument: np.random.Generator) -> np.ndarray:
+    """The display's transfer as two straight lines: steep up to the input `knee_in` (where the output is
+    `knee_out`), shallow from there to full scale at 1, after a `gain`; clipped and rounded to 8-bit counts."""
+    u = np.clip(p["gain"] * x, 0.0, 1.0)
+    low = u * (p["knee_out"] / p["knee_in"])
+    high = p["knee_out"] + (u - p["knee_in"]) * (1.0 - p["knee_out"]) / (1.0 - p["knee_in"])
+    return np.round(255 * np.where(u < p["knee_in"], low, high)).astype(np.uint8)
