@@ -543,13 +543,6 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             candidates = [(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency, s.stats) for s in remaining]
         best_gap, best_base, best_effect, best_solo, best_stats = min(trials, key=lambda t: t[0])
         best_name = best_solo.ranked.name
-        # a rival is told apart from the pick only at the resolution an effect is named at: the pick's gap lower
-        # than the rival's by the least gain worth naming, significantly (a surge smear and a range blur that
-        # both smooth along range differ by less, however steadily one of them wins the resamples)
-        alternatives = tuple(
-            Alternative(name, gap_value, frequency,
-                        name == best_name or lower_bound(stats, best_stats, 300 + len(chosen))[1] > least_gain)
-            for name, gap_value, frequency, stats in candidates)
         if current - best_gap < least_gain:
             stopped = f"no remaining effect lowers the held-out gap by {c.min_gain:.0%} of the gap before"
             break
@@ -559,6 +552,13 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
                        f"significantly by {c.min_gain:.0%} of the gap before (one-sided {c.significance:.0%} lower "
                        f"bound {lower:.3g} <= {least_gain:.3g})")
             break
+        # a rival is told apart from the pick only at the resolution an effect is named at: the pick's gap lower
+        # than the rival's by the least gain worth naming, significantly (a surge smear and a range blur that
+        # both smooth along range differ by less, however steadily one of them wins the resamples)
+        alternatives = tuple(
+            Alternative(name, gap_value, frequency,
+                        name == best_name or lower_bound(stats, best_stats, 300 + len(chosen))[1] > least_gain)
+            for name, gap_value, frequency, stats in candidates)
         chosen = [*best_base, best_effect]
         path.append(Step("add", best_name, best_gap, alternatives))
         current, current_stats = best_gap, best_stats
