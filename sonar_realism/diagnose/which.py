@@ -98,8 +98,9 @@ class GainPattern:
 
     @property
     def shaped(self) -> bool:
-        """Whether it has more than a level and a ramp (dozens of numbers, or a band's place read off the data)."""
-        return self.range_shape_db is not None or self.band_rows is not None
+        """Whether it has a range or beam shape (dozens of numbers). A band alone is not: like an effect, it is a
+        hypothesis of a few numbers (a place, a width, an amplitude) about one thing in the frame."""
+        return self.range_shape_db is not None
 
     def apply(self, image: np.ndarray, factor: np.ndarray) -> np.ndarray:
         """`image` (amplitude) times the gain `factor` (self.factor, computed once per frame set), plus the band."""
@@ -616,7 +617,13 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float, Stats | None]:
         rest = [e for e in chosen if e is not effect]
         pattern = fit_gain_pattern(problem, rest, c)
-        return (pattern, *holdout(rest, pattern))
+        judged = [(pattern, *holdout(rest, pattern))]
+        if pattern.band_rows is not None and (pattern.shaped or pattern.params() != GainPattern().params()):
+            # the band alone too: a level, ramp and shape fitted on a few frames of a varied scene can be worse
+            # than nothing on held-out frames, where a fixed band at its rows (a housing reflection) still holds
+            band = GainPattern(band_rows=pattern.band_rows, band_amplitude=pattern.band_amplitude)
+            judged.append((band, *holdout(rest, band)))
+        return min(judged, key=lambda t: t[1])
 
     stand_ins = []
     # every selected effect's stand-in pattern at once; one is refitted only if an earlier one was dropped
