@@ -238,3 +238,16 @@ def test_the_bench_reads_a_diagnosis_from_the_design_contract_keys_alone():
     nested = {**payload, "residual": {"size": 0.5, "where": {"cells": [], "bearing_bins": [
         {"bin": 7, "span": [10.0, 12.0], "gap": 0.1, "share": 0.4}]}}}
     assert bench.in_place(bench.read_diagnosis(nested), bench.Place(bearing_deg=((11.0, 11.5),)))
+
+
+def test_the_bench_counts_a_name_with_its_ambiguous_group_and_runs_either_half():
+    bench = load_repo_script("bench/bench_diagnose_heldout.py", "bench_diagnose_heldout")
+    payload = {"gap_before": 1.0, "gap_after_selected": 0.5, "selected": ["motion_blur"],
+               "ranked_effects": [{"name": "motion_blur", "params": {}, "gap_after": 0.5}], "residual": {},
+               "ambiguous": [{"step": 1, "effects": [{"effect": "motion_blur"}, {"effect": "range_blur"}]}]}
+    read = bench.read_diagnosis(payload)
+    assert bench.top1(read) == "motion_blur"
+    assert set(bench.ambiguous_with(read, "motion_blur")) == {"motion_blur", "range_blur"}
+    assert bench.ambiguous_with(bench.read_diagnosis({**payload, "ambiguous": []}), "motion_blur") == []
+    tuning = bench.implementations(False, registry=bench.TUNING)
+    assert tuning and not set(tuning) & set(bench.implementations(False))
