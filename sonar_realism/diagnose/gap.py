@@ -205,8 +205,8 @@ def bootstrap_gain(before: Stats, after: Stats, target: Stats, scale: FeatureSca
     if _count(after) != na:
         raise ConfigError("bootstrap_gain: `before` and `after` must hold the same frames")
     families = list(scale.spread)
-    point = np.array([family_gaps(before, target, scale)[f] - family_gaps(after, target, scale)[f]
-                      for f in families])
+    was, now = family_gaps(before, target, scale), family_gaps(after, target, scale)
+    point = np.array([was[f] - now[f] for f in families])
     estimate = float(point.mean())
     if n_boot < 1:
         return estimate, estimate

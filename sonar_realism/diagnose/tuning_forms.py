@@ -27,8 +27,8 @@ import numpy as np
 
 from sonar_realism.diagnose.heldout.base import TUNING, Param, ar1, bin_m, fft_convolve, sin_step, tuning_form
 from sonar_realism.frames import SonarImage
+from sonar_realism.sim.effects import SOUND_SPEED_MPS
 
-SOUND_SPEED_MPS = 1500.0
 __all__ = ["TUNING"]  # filled by the registrations below
 
 
