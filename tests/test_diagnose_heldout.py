@@ -3,6 +3,7 @@ says, keeps shape and dtype, and is fixed by its seed; the registry covers every
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -251,3 +252,18 @@ def test_the_bench_counts_a_name_with_its_ambiguous_group_and_runs_either_half()
     assert bench.ambiguous_with(bench.read_diagnosis({**payload, "ambiguous": []}), "motion_blur") == []
     tuning = bench.implementations(False, registry=bench.TUNING)
     assert tuning and not set(tuning) & set(bench.implementations(False))
+
+
+def test_the_validation_runs_small_end_to_end_on_both_halves():
+    # the tuning set's assertions may fail with the diagnosis; the held-out half is only run, never pinned
+    bench = load_repo_script("bench/bench_diagnose_heldout.py", "bench_diagnose_heldout")
+    config = dataclasses.replace(bench.QUICK_CONFIG, effects=("gamma_quantization", "speckle", "tvg_noise",
+                                                              "range_blur"))
+    rows = bench.accuracy("default:16", config, lambda message: None, only=("gamma_quantization", "range_blur"),
+                          registry=bench.TUNING)
+    assert [r["implementation"] for r in rows] == ["none (null)", "range_blur/lorentzian",
+                                                   "gamma_quantization/two_slope"]
+    assert rows[0]["selected"] == [] and all(r["top1_correct"] for r in rows[1:])
+    held_out = bench.accuracy("default:16", config, lambda message: None, only=("column_stripes",))
+    summary = bench.summarise(held_out)
+    assert summary["uncatalogued_cases"] == 1 and {"blamed", "in_place"} <= set(held_out[-1])
