@@ -9,6 +9,7 @@ import pytest
 
 from sonar_realism.cli import main
 from sonar_realism.diagnose import DiagnoseConfig, diagnose, load_diagnosis
+from sonar_realism.diagnose.arcs import check_arcs
 from sonar_realism.diagnose.config import SearchConfig
 from sonar_realism.diagnose.diagnosis import _ambiguous_groups, split_indices
 from sonar_realism.diagnose.gap import (
@@ -390,7 +391,7 @@ def test_multipath_without_its_ghost_is_not_blamed_and_a_true_ghost_is():
     world = diagnose(frames[0::2], shaped, config)
     assert world.selected == ()
     assert [u.effect for u in world.unconfirmed] == ["multipath"]
-    assert world.unconfirmed[0].excess < world.unconfirmed[0].needed
+    assert world.unconfirmed[0].signature.startswith("a ghost")
     assert world.selection_path[-1].action == "unconfirmed"
     assert world.unconfirmed[0].gap_with_effect < world.unconfirmed[0].gap_without  # it did close part of the gap
     ghost = make_effect("multipath", reflection_coeff=0.6, ghost_offset_m=2.0)
@@ -458,3 +459,16 @@ def test_a_range_blur_is_reported_as_a_range_blur_or_a_surge_smear_not_as_one_co
     assert result.verdict == "ambiguous"
     assert {a.effect for a in result.ambiguous[0].effects} == {"range_blur", "motion_blur"}
     assert result.selected[0] in {"range_blur", "motion_blur"}
+
+
+def test_arcs_that_move_are_confirmed_and_a_band_at_fixed_rows_is_not():
+    rng = np.random.default_rng(4)
+    sim = np.clip(rng.rayleigh(0.2, (16, 128, 64)), 0, 1).astype(np.float32)
+    real = np.clip(rng.rayleigh(0.2, (16, 128, 64)), 0, 1).astype(np.float32)
+    moving, band = real.copy(), real.copy()
+    for frame, row in zip(moving, rng.integers(20, 120, 16), strict=True):
+        frame[row:row + 2] += 0.8  # one arc per ping, somewhere new
+    band[:, 80:83] += 0.8  # the same rows in every frame
+    assert check_arcs(moving, sim).confirmed
+    fixed = check_arcs(band, sim)
+    assert not fixed.confirmed and fixed.real_share == 1.0

@@ -24,7 +24,6 @@ from sonar_realism.diagnose.gap import (
     headline,
     representative_subset,
 )
-from sonar_realism.diagnose.ghost import range_lag_correlation
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     AmbiguousGroup,
@@ -167,8 +166,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     names = [*names, *terms]
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
-                               real_lags=range_lag_correlation(real_hold),
-                               sim_lags=lambda effects: range_lag_correlation(holdout_stats(effects)[0]))
+                               real_images=real_hold, sim_images=lambda effects: holdout_stats(effects)[0])
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)

@@ -35,6 +35,10 @@ class GhostCheck:
     def confirmed(self) -> bool:
         return self.excess >= self.needed
 
+    def describe(self) -> str:
+        return (f"a ghost: the real frames' excess correlation between rows {self.lag_bins:.0f} bins apart is "
+                f"{self.excess:.3f} (a ghost from {self.needed:.3f})")
+
 
 def range_lag_correlation(images: np.ndarray) -> np.ndarray:
     """Correlation of the per-frame amplitude fluctuation (each frame minus the mean frame) between rows r and

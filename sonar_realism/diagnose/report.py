@@ -135,10 +135,9 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                       "residual: a gain pattern the catalogue lacks, or the sim's intensity scale.")
                  for s in d.gain_stand_ins]
     unconfirmed = [Text(f"Not blamed: **{u.effect}** closed part of the gap (held-out gap {u.gap_with_effect:.3g} "
-                        f"with it, {u.gap_without:.3g} without), but the real frames show no ghost: their excess "
-                        f"correlation between rows {u.lag_bins:.0f} bins apart is {u.excess:.3f}, below "
-                        f"{u.needed:.3f}. What it mimicked is a difference of the scene or the set-up (another "
-                        "seabed, other objects): residual.")
+                        f"with it, {u.gap_without:.3g} without), but the real frames lack its signature, "
+                        f"{u.signature}. What it mimicked is a difference of the scene or the set-up (another "
+                        "seabed, other objects) or an effect the catalogue lacks: residual.")
                    for u in d.unconfirmed]
     pattern = res.gain_pattern
     gain_text = (f"A fixed gain pattern on top of the selected effects closes a further "

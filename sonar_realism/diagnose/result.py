@@ -218,16 +218,14 @@ class Residual:
 
 @dataclass(frozen=True)
 class Unconfirmed:
-    """A selected effect dropped because the real frames lack its signature: a multipath whose ghost copy of each
-    frame's scene is not there (`lag_bins`: the fitted offset in range bins; `excess`: the real frames' excess
-    correlation between rows that far apart over the corrected sim's, `needed` the least that confirms a ghost).
-    What it closed of the gap is a difference of the world or the set-up, not this effect: it stays residual."""
+    """A selected effect dropped because the real frames lack its signature (`signature`: what was looked for
+    and what was measured): a multipath whose ghost copy of each frame's scene is not there, an interference whose
+    bright rows sit at the same ranges in every frame (a fixed band). What it closed of the gap is a difference
+    of the world, the set-up or an un-catalogued effect, not this effect: it stays residual."""
 
     effect: str
     params: dict[str, Any]
-    lag_bins: float
-    excess: float
-    needed: float
+    signature: str
     gap_with_effect: float
     gap_without: float
 

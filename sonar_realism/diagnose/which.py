@@ -9,10 +9,11 @@ candidate wins is its stability, and a step whose runner-up wins often is report
 
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
 after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. A
-selected multipath must then show its ghost in the real frames (diagnose/ghost.py), or it is dropped as
-unconfirmed. Last, each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per
-beam): an effect whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple
-the catalogue lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
+selected multipath must then show its ghost in the real frames (diagnose/ghost.py), and a selected interference
+arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Last, each selected effect
+must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect whose fitted form does no
+more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue lacks) is not blamed, and its
+part of the gap stays residual, with the pattern's place.
 """
 
 from __future__ import annotations
@@ -26,9 +27,10 @@ from typing import ClassVar, TypeVar
 import cv2
 import numpy as np
 
+from sonar_realism.diagnose.arcs import ArcCheck, check_arcs
 from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
 from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
-from sonar_realism.diagnose.ghost import check_ghost, ghost_lag_bins
+from sonar_realism.diagnose.ghost import GhostCheck, check_ghost, ghost_lag_bins, range_lag_correlation
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     Alternative,
@@ -43,7 +45,7 @@ from sonar_realism.diagnose.scene_terms import SceneTerm, apply_scene_terms, kin
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import Effect, Multipath, apply_effects, make_effect
+from sonar_realism.sim.effects import Effect, Interference, Multipath, apply_effects, make_effect
 
 # A gain pattern's smooth part has this many degrees of freedom per axis; channels that stand out from it by more
 # than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB) keep their own gain: a stripe is one beam wide.
@@ -378,9 +380,8 @@ class SelectionProblem:
     `holdout(effects, gain)` -> (gap, statistics or None), the held-out real statistics `target` and the raw sim's
     `stats_before` (None: no significance test, no bootstrap frequencies), and the gap before. `ranges_m` /
     `bearings_deg` place a gain pattern. `scene_terms`: the geometry and scene candidates' starting points (empty:
-    sensor effects only). `real_lags` (the real held-out frames' ghost.range_lag_correlation) and `sim_lags`
-    (effects -> the same of the held-out sim corrected by them) test a selected multipath for its ghost (None: no
-    test)."""
+    sensor effects only). `real_images` (the real held-out frames) and `sim_images` (effects -> the held-out sim
+    frames corrected by them) test a selected effect for its signature (`signature_check`; None: no test)."""
 
     fit_frames: Sequence[SonarImage]
     fit_target: Stats
@@ -393,8 +394,8 @@ class SelectionProblem:
     ranges_m: np.ndarray
     bearings_deg: np.ndarray
     scene_terms: Mapping[str, SceneTerm] = dataclasses.field(default_factory=dict)
-    real_lags: np.ndarray | None = None
-    sim_lags: Callable[[Sequence[Effect]], np.ndarray] | None = None
+    real_images: np.ndarray | None = None
+    sim_images: Callable[[Sequence[Effect]], np.ndarray] | None = None
 
     def start(self, name: str) -> Effect:
         """Where a candidate's search starts: a geometry or scene term's start, else the catalogue's default."""
@@ -424,6 +425,18 @@ class Solo:
     ranked: RankedEffect
     effect: Effect
     stats: Stats | None
+
+
+def signature_check(effect: Effect, real_images: np.ndarray, sim_images: np.ndarray,
+                    ranges_m: np.ndarray) -> GhostCheck | ArcCheck | None:
+    """The test of what `effect` leaves in every frame that nothing else does, on the real held-out frames
+    against the sim's corrected by the other selected effects; None for an effect without one."""
+    if isinstance(effect, Multipath):
+        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images),
+                           ghost_lag_bins(effect.ghost_offset_m, ranges_m))
+    if isinstance(effect, Interference):
+        return check_arcs(real_images, sim_images)
+    return None
 
 
 def rank_effects(names: Sequence[str], problem: SelectionProblem, config: DiagnoseConfig,
@@ -474,8 +487,9 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     Pruning then takes the effect whose removal costs least and compares the set without it against the whole
     set, both refitted one round: it is dropped unless the cost passes the same two tests, and so on.
 
-    The ghost check then drops a selected multipath whose ghost (each frame's own scene again at the fitted
-    offset) the real held-out frames do not show (`ghost.check_ghost`; listed in `unconfirmed`).
+    The signature checks then drop a selected multipath whose ghost (each frame's own scene again at the fitted
+    offset) the real held-out frames do not show (`ghost.check_ghost`) and a selected interference whose bright
+    rows sit at the same ranges in most real frames (`arcs.check_arcs`); both are listed in `unconfirmed`.
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
     others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
@@ -595,24 +609,23 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             progress(f"pruned {dropped.name} (the others explain it): held-out gap {gap_without:.4g}")
 
-    # a multipath must show its ghost: each frame's own scene again at the fitted offset; what it closed without
-    # one is a difference of the world (another seabed) that its added far-range power mimics
+    # an effect with a signature must show it in the real frames: a multipath its ghost (each frame's own scene
+    # again at the fitted offset), an interference arcs that move; what it closed without is another world's
+    # difference (another seabed) or a fixed band that its added power mimics
     unconfirmed = []
-    for effect in [e for e in chosen if isinstance(e, Multipath)] if problem.real_lags is not None else []:
+    for effect in list(chosen) if problem.real_images is not None and problem.sim_images is not None else []:
         rest = [e for e in chosen if e is not effect]
-        check = check_ghost(problem.real_lags, problem.sim_lags(rest),
-                            ghost_lag_bins(effect.ghost_offset_m, problem.ranges_m))
-        if check.confirmed:
+        check = signature_check(effect, problem.real_images, problem.sim_images(rest), problem.ranges_m)
+        if check is None or check.confirmed:
             continue
         rest = refit_each(rest)
         gap_rest, stats_rest = holdout(rest)
-        unconfirmed.append(Unconfirmed(effect.name, effect.params(), check.lag_bins, check.excess, check.needed,
-                                       current, gap_rest))
+        unconfirmed.append(Unconfirmed(effect.name, effect.params(), check.describe(), current, gap_rest))
         chosen, current, current_stats = rest, gap_rest, stats_rest
         path.append(Step("unconfirmed", effect.name, gap_rest))
         if progress:
-            progress(f"{effect.name}: no ghost in the real frames (excess lag correlation {check.excess:.3f} < "
-                     f"{check.needed:.3f} at {check.lag_bins:.1f} bins): not blamed; held-out gap {gap_rest:.4g}")
+            progress(f"{effect.name}: the real frames lack its signature ({check.describe()}): not blamed; "
+                     f"held-out gap {gap_rest:.4g}")
 
     def pattern_in_place_of(effect: Effect) -> tuple[GainPattern, float, Stats | None]:
         rest = [e for e in chosen if e is not effect]
