@@ -133,8 +133,11 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     candidate_stats = _statistics(_images([sim[i] for i in candidates], config.normalize), stats_cfg, config.workers)
     fit_frames = [sim[candidates[i]] for i in sorted(representative_subset(candidate_stats, config.fit_frames, scale))]
 
+    def holdout_images(effects: Sequence[Effect], gain: GainPattern | None = None) -> np.ndarray:
+        return corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize, gain)
+
     def holdout_stats(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[np.ndarray, Stats]:
-        images = corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize, gain)
+        images = holdout_images(effects, gain)
         return images, frame_statistics(images, stats_cfg)
 
     def holdout(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[float, Stats | None]:
@@ -166,7 +169,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     names = [*names, *terms]
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
-                               real_images=real_hold, sim_images=lambda effects: holdout_stats(effects)[0])
+                               real_images=real_hold, sim_images=holdout_images)
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)

@@ -115,9 +115,10 @@ def _rows(stats: Stats, index: np.ndarray) -> dict[str, np.ndarray]:
     return {family: values[index] for family, values in stats.items()}
 
 
-def _resampled(statistic: Callable[[np.ndarray, np.ndarray], float], na: int, nb: int, n_boot: int,
-               seed: int) -> np.ndarray:
-    """`statistic(ia, ib)` over `n_boot` draws of frame indices with replacement: ia for one set, ib for the other."""
+def _resampled(statistic: Callable[[np.ndarray, np.ndarray], float | list[float]], na: int, nb: int,
+               n_boot: int, seed: int) -> np.ndarray:
+    """`statistic(ia, ib)` (a number or a list of them) over `n_boot` draws of frame indices with replacement: ia
+    for one set, ib for the other."""
     rng = np.random.default_rng(seed)
     values = []
     for _ in range(n_boot):
@@ -210,13 +211,13 @@ def bootstrap_gain(before: Stats, after: Stats, target: Stats, scale: FeatureSca
     estimate = float(point.mean())
     if n_boot < 1:
         return estimate, estimate
-    rng = np.random.default_rng(seed)
-    values = np.empty((n_boot, len(families)))
-    for k in range(n_boot):
-        ia, ib = rng.integers(0, na, na), rng.integers(0, nb, nb)
+
+    def gains(ia: np.ndarray, ib: np.ndarray) -> list[float]:
         resampled_target = _rows(target, ib)
         was, now = (family_gaps(_rows(stats, ia), resampled_target, scale) for stats in (before, after))
-        values[k] = [was[f] - now[f] for f in families]
+        return [was[f] - now[f] for f in families]
+
+    values = _resampled(gains, na, nb, n_boot, seed)  # [n_boot, families]
     # centred on the estimate, as bootstrap_interval does
     total = values.mean(axis=1)
     lower = float(np.quantile(total, 1 - level) - total.mean() + estimate)

@@ -27,15 +27,16 @@ import numpy as np
 
 from sonar_realism.diagnose.heldout.base import TUNING, Param, ar1, bin_m, fft_convolve, sin_step, tuning_form
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import SOUND_SPEED_MPS
+from sonar_realism.sim.effects import DEFAULT_ALTITUDE_M, DEFAULT_TILT_RAD, SOUND_SPEED_MPS, seabed_elevation
 
 __all__ = ["TUNING"]  # filled by the registrations below
 
 
-def _power_kernel_across(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Amplitude after convolving the power across beams with a centred odd `kernel` (sums to 1)."""
+def _convolve_power(x: np.ndarray, kernel: np.ndarray, axis: int) -> np.ndarray:
+    """Amplitude after convolving the power along `axis` (0: range, 1: beams) with a centred odd `kernel`."""
     power = (x * x).astype(np.float64)
-    return np.sqrt(np.maximum(fft_convolve(power, kernel, 1, kernel.size // 2), 0.0)).astype(np.float32)
+    spread = fft_convolve(power, kernel / kernel.sum(), axis, kernel.size // 2)
+    return np.sqrt(np.maximum(spread, 0.0)).astype(np.float32)
 
 
 @tuning_form("speckle", "multilook_box",
@@ -70,7 +71,7 @@ def exponential_skirt(x: np.ndarray, frame: SonarImage, p: dict[str, float], pin
     main = np.exp(-4 * math.log(2) * (k / max(width, 1e-3)) ** 2)
     skirt = 10 ** (p["skirt_db"] / 10) * np.exp(-(np.abs(k) - 1) / p["skirt_beams"])
     kernel = np.where(np.abs(k) >= max(1.0, width / 2), np.maximum(main, skirt), main)
-    return _power_kernel_across(x, kernel / kernel.sum())
+    return _convolve_power(x, kernel, axis=1)
 
 
 @tuning_form("range_blur", "lorentzian",
@@ -82,9 +83,7 @@ def lorentzian(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.r
     width = max(p["resolution_m"] / bin_m(frame), 0.3)
     half = int(min(math.ceil(8 * width), x.shape[0] - 1))
     d = np.arange(-half, half + 1, dtype=np.float64)
-    kernel = 1.0 / (1.0 + (2 * d / width) ** 2)
-    power = (x * x).astype(np.float64)
-    return np.sqrt(np.maximum(fft_convolve(power, kernel / kernel.sum(), 0, half), 0.0)).astype(np.float32)
+    return _convolve_power(x, 1.0 / (1.0 + (2 * d / width) ** 2), axis=0)
 
 
 @tuning_form("tvg_noise", "real_ramp_db",
@@ -110,19 +109,13 @@ def cos_power(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
     """Two-way vertical pattern cos^m(elevation off the beam axis), m set so the power is half at
     +-`beamwidth_deg`/2, never below `floor_db` (amplitude): every pixel weighted by the pattern at the elevation
     a flat seabed at the frame's altitude and tilt is seen at."""
-    altitude = float(frame.meta.get("sonar_altitude_m", 2.0))
-    tilt = float(frame.meta.get("sonar_tilt_rad", math.radians(10.0)))
-    r = frame.ranges_m[:, None]
-    cos_b = np.cos(frame.azimuths_rad)[None, :]
-    # elevation phi (sonar frame, + up) of the seabed: r (sin(phi) cos(tilt) - cos(phi) cos(b) sin(tilt)) = -h
-    a, b = math.cos(tilt), cos_b * math.sin(tilt)
-    norm = np.sqrt(a * a + b * b)
-    q = np.clip(-altitude / (r * norm), -1.0, 1.0)
-    phi = np.arcsin(q) + np.arctan2(b, a)
+    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
+    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
+    # out of the seabed's reach the elevation is -90 deg: the pattern's floor
+    phi = seabed_elevation(frame, altitude, tilt)
     half = math.radians(p["beamwidth_deg"]) / 2
     m = math.log(0.5) / (2 * math.log(math.cos(half)))
-    weight = np.maximum(np.cos(np.clip(phi, -math.pi / 2, math.pi / 2)) ** m, 10 ** (p["floor_db"] / 20))
-    weight = np.where(r * norm >= altitude, weight, 10 ** (p["floor_db"] / 20))
+    weight = np.maximum(np.cos(phi) ** m, 10 ** (p["floor_db"] / 20))
     return (x * weight).astype(np.float32)
 
 

@@ -427,15 +427,16 @@ class Solo:
     stats: Stats | None
 
 
-def signature_check(effect: Effect, real_images: np.ndarray, sim_images: np.ndarray,
+def signature_check(effect: Effect, real_images: np.ndarray, sim_images: Callable[[], np.ndarray],
                     ranges_m: np.ndarray) -> GhostCheck | ArcCheck | None:
     """The test of what `effect` leaves in every frame that nothing else does, on the real held-out frames
-    against the sim's corrected by the other selected effects; None for an effect without one."""
+    against the sim's corrected by the other selected effects (`sim_images`, made only for an effect that has a
+    test); None for an effect without one."""
     if isinstance(effect, Multipath):
-        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images),
+        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images()),
                            ghost_lag_bins(effect.ghost_offset_m, ranges_m))
     if isinstance(effect, Interference):
-        return check_arcs(real_images, sim_images)
+        return check_arcs(real_images, sim_images())
     return None
 
 
@@ -615,7 +616,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     unconfirmed = []
     for effect in list(chosen) if problem.real_images is not None and problem.sim_images is not None else []:
         rest = [e for e in chosen if e is not effect]
-        check = signature_check(effect, problem.real_images, problem.sim_images(rest), problem.ranges_m)
+        check = signature_check(effect, problem.real_images, lambda rest=rest: problem.sim_images(rest),
+                                problem.ranges_m)
         if check is None or check.confirmed:
             continue
         rest = refit_each(rest)
