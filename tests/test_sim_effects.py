@@ -256,6 +256,26 @@ def test_tvg_noise_floor_rises_with_range_and_is_redrawn_every_ping() -> None:
     assert np.corrcoef(residual.ravel(), other_residual.ravel())[0, 1] < 0.1  # electronic noise is not frozen
 
 
+def test_tvg_beam_noise_contrast_stripes_the_noise_floor_not_the_lit_seabed() -> None:
+    image = np.zeros((N_RANGES, N_BEAMS), np.float32)
+    image[N_RANGES // 2:] = 0.5  # a lit seabed over a dark water column
+    frame = make_frame(image)
+
+    def column_spread(out: np.ndarray, rows: slice) -> float:
+        means = out[rows].astype(np.float64).mean(axis=0)
+        return float(means.std() / means.mean())
+
+    plain = TvgNoise(noise_amplitude=0.05, tvg_log_coeff_db=20.0)
+    striped = TvgNoise(noise_amplitude=0.05, tvg_log_coeff_db=20.0, beam_noise_contrast=0.5)
+    water, seabed = slice(N_RANGES // 4, N_RANGES // 2), slice(N_RANGES // 2, None)
+    plain_out, striped_out = plain.apply(image, frame, rng(3)), striped.apply(image, frame, rng(3))
+    assert column_spread(striped_out, water) > 3 * column_spread(plain_out, water)
+    assert column_spread(striped_out, seabed) < 0.02
+    # off, the ping draws nothing more: the output is what it was before the parameter existed
+    assert np.array_equal(TvgNoise(noise_amplitude=0.05, tvg_log_coeff_db=20.0, beam_noise_contrast=0.0)
+                          .apply(image, frame, rng(3)), plain_out)
+
+
 def test_tvg_residual_ramp_scales_signal_by_range_only() -> None:
     flat = np.full((N_RANGES, N_BEAMS), 0.3, np.float32)
     out = TvgNoise(noise_amplitude=0.0, residual_ramp_db=6.0).apply(flat, make_frame(flat), rng())

@@ -360,7 +360,9 @@ class TvgNoise(Effect, order=70):
     first bin to that many dB at the last). Electronic noise enters after the losses, so TVG amplifies it:
     complex Gaussian noise (new every ping, correlated across beams by the beamformer) of rms
     `noise_amplitude` at the maximum range and rms scaled by G(r)/G(r_max) nearer in. Signal and noise add as
-    phasors: A_out = |A * ramp(r) + n(r)|.
+    phasors: A_out = |A * ramp(r) + n(r)|. Receive channels differ in noise figure: each beam's noise rms is
+    scaled by a log-normal of rms `beam_noise_contrast` (natural log, drawn each ping), so the noise floor is
+    striped where nothing brighter covers it (the water column) and the lit seabed is not.
     """
 
     name: ClassVar[str] = "tvg_noise"
@@ -368,13 +370,15 @@ class TvgNoise(Effect, order=70):
     tvg_log_coeff_db: float = 15.2  # calibrated
     absorption_db_per_m: float = 0.5
     residual_ramp_db: float = -0.562  # calibrated
+    beam_noise_contrast: float = 0.0
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
         "noise_amplitude": (0.0, 0.5), "tvg_log_coeff_db": (10.0, 40.0), "absorption_db_per_m": (0.0, 2.0),
-        "residual_ramp_db": (-12.0, 12.0)}
+        "residual_ramp_db": (-12.0, 12.0), "beam_noise_contrast": (0.0, 1.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "noise_amplitude": (0.0, 10.0), "tvg_log_coeff_db": (0.0, 80.0), "absorption_db_per_m": (0.0, 10.0),
-        "residual_ramp_db": (-60.0, 60.0)}
-    CALIBRATED: ClassVar[tuple[str, ...]] = ("noise_amplitude", "tvg_log_coeff_db", "residual_ramp_db")
+        "residual_ramp_db": (-60.0, 60.0), "beam_noise_contrast": (0.0, 3.0)}
+    CALIBRATED: ClassVar[tuple[str, ...]] = ("noise_amplitude", "tvg_log_coeff_db", "residual_ramp_db",
+                                             "beam_noise_contrast")
     OWN_PHYSICS: ClassVar[tuple[str, ...]] = ("noise_amplitude",)  # without noise: a gain curve over range
 
     # Beamforming correlates the noise across about one beam (sigma in beams).
@@ -402,8 +406,12 @@ class TvgNoise(Effect, order=70):
         out = np.empty_like(planes)
         for i, plane in enumerate(planes):
             noise_re, noise_im = _complex_gaussian(rng, plane.shape)
-            re = cv2.sepFilter2D(noise_re, -1, kx, one, borderType=cv2.BORDER_REFLECT_101) * (profile / gain)
-            im = cv2.sepFilter2D(noise_im, -1, kx, one, borderType=cv2.BORDER_REFLECT_101) * (profile / gain)
+            scale = profile / gain
+            if self.beam_noise_contrast > 0:  # drawn only when on: without it the ping's draws stay as they were
+                scale = scale * np.exp(np.float32(self.beam_noise_contrast)
+                                       * rng.standard_normal(plane.shape[-1]).astype(np.float32))[None, :]
+            re = cv2.sepFilter2D(noise_re, -1, kx, one, borderType=cv2.BORDER_REFLECT_101) * scale
+            im = cv2.sepFilter2D(noise_im, -1, kx, one, borderType=cv2.BORDER_REFLECT_101) * scale
             re += plane * ramp
             out[i] = np.sqrt(re * re + im * im)
         return out.reshape(intensity.shape)
