@@ -35,7 +35,15 @@ from typing import Any
 import numpy as np
 
 from sonar_realism.diagnose import DiagnoseConfig, diagnose
-from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, UNCATALOGUED, Implementation, Place, apply_held_out
+from sonar_realism.diagnose.blind_forms import BLIND
+from sonar_realism.diagnose.heldout import (
+    IMPLEMENTATIONS,
+    REGISTRIES,
+    UNCATALOGUED,
+    Implementation,
+    Place,
+    apply_held_out,
+)
 from sonar_realism.diagnose.scene_terms import SceneStart
 from sonar_realism.diagnose.tuning_forms import TUNING
 from sonar_realism.frames import SonarImage
@@ -50,6 +58,8 @@ SIM_SEED, REAL_SEED = 11, 22
 QUICK_CONFIG = DiagnoseConfig(fit_frames=6, eval_frames=16, real_frames=16, bootstrap=50)
 FULL_SETTINGS = "default:40:inside+wide,organic:40,calibrated:40,default:500:inside:first"
 QUICK_SETTINGS = "default:24"
+# the validation sets `--half` picks: never tuned against, tuned against, written blind later (a fresh held-out)
+HALVES: dict[str, dict[str, Implementation]] = {"held-out": IMPLEMENTATIONS, "tuning": TUNING, "blind": BLIND}
 
 # Detection-limit sweeps: implementation, the parameter swept (weak to strong), the values, the others held.
 LIMITS: dict[str, tuple[str, tuple[float, ...], dict[str, float]]] = {
@@ -152,7 +162,7 @@ def in_place(read: Read, place: Place) -> bool:
 def run_case(sim: list[SonarImage], real_source: list[SonarImage], implementation: str | None, mode: str,
              params: dict[str, float], config: DiagnoseConfig, seed: int, scene: SceneStart | None = None,
              ) -> dict[str, Any]:
-    entry = (IMPLEMENTATIONS.get(implementation) or TUNING[implementation]) if implementation else None
+    entry = next(known[implementation] for known in REGISTRIES if implementation in known) if implementation else None
     real = apply_held_out(real_source, implementation, params, seed) if implementation else real_source
     started = time.perf_counter()
     read = read_diagnosis(diagnose(sim, real, config, scene=scene))
@@ -206,7 +216,7 @@ def accuracy(settings: str, config: DiagnoseConfig, log: Callable[[str], None],
              keep: Callable[[list[dict[str, Any]]], None] = lambda rows: None, only: tuple[str, ...] = (),
              scene: SceneStart | None = None, registry: dict[str, Implementation] = IMPLEMENTATIONS,
              ) -> list[dict[str, Any]]:
-    """Every case of every setting (implementations of `registry`: the held-out half, or TUNING); `keep` sees the
+    """Every case of every setting (implementations of `registry`: one of HALVES); `keep` sees the
     rows so far after each case (a long run's partial results)."""
     rows: list[dict[str, Any]] = []
     for scene_name, n, modes, first_only in parse_settings(settings):
@@ -381,9 +391,9 @@ def main() -> int:
     parser.add_argument("--only", default="", help="run only implementations whose name contains one of these "
                                                    "comma-separated strings (e.g. range_blur,column_stripes), with "
                                                    "the parameters they have in the full run")
-    parser.add_argument("--half", choices=("held-out", "tuning"), default="held-out",
-                        help="which implementations: the held-out half (never tuned against) or the tuning set "
-                             "(diagnose/tuning_forms.py)")
+    parser.add_argument("--half", choices=tuple(HALVES), default="held-out",
+                        help="which implementations: the held-out half (never tuned against), the tuning set "
+                             "(diagnose/tuning_forms.py) or the blind set (diagnose/blind_forms.py)")
     parser.add_argument("--limits", action="store_true", help="detection-limit sweeps instead of the accuracy run")
     parser.add_argument("--repeats", type=int, default=3, help="repeats per sweep value (--limits)")
     parser.add_argument("--limit-frames", type=int, default=24, help="frames per set in the sweeps (--limits)")
@@ -410,7 +420,7 @@ def main() -> int:
         only = tuple(filter(None, (s.strip() for s in args.only.split(","))))
         scene = SceneStart.from_calibration(load_calibration(args.calibration)) if args.calibration else None
         rows = accuracy(args.settings or (QUICK_SETTINGS if args.quick else FULL_SETTINGS), config, log, keep, only,
-                        scene, TUNING if args.half == "tuning" else IMPLEMENTATIONS)
+                        scene, HALVES[args.half])
         summary = summarise(rows)
         print_accuracy(summary)
     run_info = {"command": " ".join(sys.argv), "seconds": time.perf_counter() - started, "grid": list(GRID),

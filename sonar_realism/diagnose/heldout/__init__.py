@@ -15,7 +15,9 @@ from sonar_realism.diagnose.heldout import (  # noqa: F401  (imported for their 
     uncatalogued,
 )
 from sonar_realism.diagnose.heldout.base import (
+    BLIND,
     IMPLEMENTATIONS,
+    REGISTRIES,
     TUNING,
     UNCATALOGUED,
     Implementation,
@@ -24,4 +26,5 @@ from sonar_realism.diagnose.heldout.base import (
     apply_held_out,
 )
 
-__all__ = ["IMPLEMENTATIONS", "TUNING", "UNCATALOGUED", "Implementation", "Param", "Place", "apply_held_out"]
+__all__ = ["BLIND", "IMPLEMENTATIONS", "REGISTRIES", "TUNING", "UNCATALOGUED", "Implementation", "Param", "Place",
+           "apply_held_out"]

@@ -10,7 +10,11 @@ Nobody tunes the diagnosis against these: they were written and committed before
 Each one registers itself with `@held_out(family, form, ...)`, so adding one is adding a function in its family's
 file. A second *tuning* set of the same kind (`sonar_realism/diagnose/tuning_forms.py`, `@tuning_form`) lives in
 its own registry, `TUNING`: the diagnosis may be tuned against it, and adding to it never changes the held-out
-half's draws. `family` is a catalogue effect name, or UNCATALOGUED for effects the catalogue has no stage for
+half's draws. A third set (`sonar_realism/diagnose/blind_forms.py`, `@blind_form`, registry `BLIND`) was written
+later by other hands that read neither the catalogue's code nor the diagnosis': a fresh held-out measurement
+after the first half had been looked at over several rounds.
+
+`family` is a catalogue effect name, or UNCATALOGUED for effects the catalogue has no stage for
 (their right answer is "residual, at these places": `place` says where).
 
 Parameters are drawn in one of two modes, recorded with every case: "inside" keeps every parameter that has a
@@ -89,6 +93,8 @@ class Implementation:
 
 IMPLEMENTATIONS: dict[str, Implementation] = {}  # the held-out half
 TUNING: dict[str, Implementation] = {}  # a second tuning set (beside diagnose/validation.py's alternatives)
+BLIND: dict[str, Implementation] = {}  # a third set, written blind to the catalogue's and the diagnosis' code
+REGISTRIES = (IMPLEMENTATIONS, TUNING, BLIND)
 
 
 def held_out(family: str, form: str, place: Callable[[SonarImage, dict[str, float]], Place] | None = None,
@@ -103,13 +109,19 @@ def tuning_form(family: str, form: str, place: Callable[[SonarImage, dict[str, f
     return _register(TUNING, family, form, place, strength, params)
 
 
+def blind_form(family: str, form: str, place: Callable[[SonarImage, dict[str, float]], Place] | None = None,
+               strength: str = "", **params: Param) -> Callable[[Apply], Apply]:
+    """Register the decorated function as blind implementation `family/form` (the third set)."""
+    return _register(BLIND, family, form, place, strength, params)
+
+
 def _register(registry: dict[str, Implementation], family: str, form: str,
               place: Callable[[SonarImage, dict[str, float]], Place] | None, strength: str,
               params: dict[str, Param]) -> Callable[[Apply], Apply]:
     def register(function: Apply) -> Apply:
         entry = Implementation(family, form, (function.__doc__ or "").strip().split("\n\n")[0], function, params,
                                place, strength)
-        if entry.name in IMPLEMENTATIONS or entry.name in TUNING:
+        if any(entry.name in known for known in REGISTRIES):
             raise ConfigError(f"validation implementation {entry.name} registered twice")
         if family != UNCATALOGUED and family not in EFFECTS:
             raise ConfigError(f"held-out {entry.name}: {family!r} is not a catalogue effect")
@@ -121,11 +133,12 @@ def _register(registry: dict[str, Implementation], family: str, form: str,
 
 
 def apply_held_out(frames: list[SonarImage], name: str, params: dict[str, float], seed: int) -> list[SonarImage]:
-    """The "real" frames: `frames` with held-out (or tuning) implementation `name` applied (per-frame draws from
-    `seed`)."""
-    entry = IMPLEMENTATIONS.get(name) or TUNING.get(name)
+    """The "real" frames: `frames` with validation implementation `name` (of any of the three sets) applied
+    (per-frame draws from `seed`)."""
+    entry = next((known[name] for known in REGISTRIES if name in known), None)
     if entry is None:
-        raise ConfigError(f"no validation implementation {name!r}; have {sorted(IMPLEMENTATIONS)} and {sorted(TUNING)}")
+        known_names = sorted(n for known in REGISTRIES for n in known)
+        raise ConfigError(f"no validation implementation {name!r}; have {known_names}")
     out = []
     for index, frame in enumerate(frames):
         ping = np.random.default_rng([seed, index])
