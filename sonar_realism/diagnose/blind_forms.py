@@ -64,7 +64,8 @@ def _column(frame: SonarImage, bearing_rad: np.ndarray | float) -> np.ndarray:
 @blind_form("elevation_spread", "gaussian_two_way_beam", strength="beamwidth_deg",
             beamwidth_deg=Param(inside=(10.0, 25.0), wide=(4.0, 60.0), catalogue="beamwidth_deg"),
             floor_db=Param(inside=(-30.0, -12.0), wide=(-50.0, -3.0), catalogue="floor_db"))
-def gaussian_two_way_beam(x, frame, p, ping, instrument):
+def gaussian_two_way_beam(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                          instrument: np.random.Generator) -> np.ndarray:
     """Vertical beam pattern as a Gaussian in elevation (one-way -3 dB at +-beamwidth/2, squared for two ways: no
     nulls, no sidelobe lobes) plus an additive power floor, weighting each pixel by the elevation at which a flat
     seabed lies, solved exactly per range and bearing from the altitude and tilt.
@@ -98,7 +99,8 @@ def _surface_delays(frame: SonarImage, height: float) -> tuple[np.ndarray, np.nd
             reflection_coeff=Param(inside=(0.3, 0.6), wide=(0.05, 0.95), catalogue="reflection_coeff"),
             surface_height_m=Param(inside=(1.0, 4.0), wide=(0.3, 10.0)),
             tail_m=Param(inside=(0.03, 0.15), wide=(0.005, 0.5)))
-def surface_bounce_pair(x, frame, p, ping, instrument):
+def surface_bounce_pair(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                        instrument: np.random.Generator) -> np.ndarray:
     """Sea-surface image paths with sonar and target both `surface_height_m` below the surface: the two mixed paths
     (out direct, back via the surface, and the reverse; power 2R^2) arrive at (r + r_b)/2 and the double bounce
     (R^4) at r_b = sqrt(r^2 + 4H^2), so the ghost offset shrinks with range instead of being a fixed offset.
@@ -132,7 +134,8 @@ def surface_bounce_pair(x, frame, p, ping, instrument):
             grain_beams=Param(inside=(0.8, 2.5), wide=(0.2, 6.0), catalogue="grain_beams"),
             grain_ranges=Param(inside=(0.6, 2.5), wide=(0.2, 6.0), catalogue="grain_ranges"),
             diffuse_fraction=Param(inside=(0.75, 0.95), wide=(0.0, 1.0)))
-def rician_lognormal_ar(x, frame, p, ping, instrument):
+def rician_lognormal_ar(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                        instrument: np.random.Generator) -> np.ndarray:
     """Rician speckle (a coherent component plus a diffuse circular Gaussian part holding `diffuse_fraction` of the
     power) times a lognormal texture of variance 1/shape_nu (a Suzuki-like law, not K), with separable AR(1)
     (exponential) grain correlation instead of a low-pass resolution cell, redrawn every ping.
@@ -158,7 +161,8 @@ def rician_lognormal_ar(x, frame, p, ping, instrument):
             surge_m_s=Param(inside=(0.3, 1.2), wide=(0.0, 3.0), catalogue="surge_m_s"),
             window_s=Param(inside=(0.08, 0.25), wide=(0.01, 0.6), catalogue="integration_s"),
             n_looks=Param(inside=(3.0, 5.0), wide=(2.0, 8.0), integer=True))
-def discrete_look_average(x, frame, p, ping, instrument):
+def discrete_look_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                          instrument: np.random.Generator) -> np.ndarray:
     """The frame as the incoherent mean of `n_looks` discrete looks spread over `window_s` (ping averaging), each the
     scene moved rigidly by the platform's yaw and surge at that instant: a forward surge shortens range by v*t*cos
     (bearing) and shifts bearing too, and a fast yaw leaves separate ghost copies rather than a continuous smear.
@@ -202,7 +206,8 @@ def _array_pattern(frame: SonarImage, p: dict[str, float], instrument: np.random
 @blind_form("beam_sidelobes", "hann_array_element_errors", strength="error_floor_db",
             mainlobe_deg=Param(inside=(0.8, 2.0), wide=(0.3, 4.0), catalogue="mainlobe_deg"),
             error_floor_db=Param(inside=(-32.0, -18.0), wide=(-55.0, -6.0), catalogue="sidelobe_db"))
-def hann_array_element_errors(x, frame, p, ping, instrument):
+def hann_array_element_errors(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                              instrument: np.random.Generator) -> np.ndarray:
     """Beam pattern computed from a Hann-tapered half-wavelength line array (smooth mainlobe, low taper sidelobes)
     whose random complex element errors, fixed for the instrument, raise an irregular, non-flat sidelobe floor of
     mean level `error_floor_db`; one kernel in sin(bearing), applied in power along each row.
@@ -231,7 +236,8 @@ def _pulse_kernel(frame: SonarImage, p: dict[str, float]) -> tuple[np.ndarray, i
 @blind_form("range_blur", "triangle_rc_tail", strength="resolution_m",
             resolution_m=Param(inside=(0.05, 0.15), wide=(0.01, 0.4), catalogue="resolution_m"),
             tail_m=Param(inside=(0.02, 0.08), wide=(0.0, 0.3)))
-def triangle_rc_tail(x, frame, p, ping, instrument):
+def triangle_rc_tail(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                     instrument: np.random.Generator) -> np.ndarray:
     """Range response of a rectangular CW pulse through a matched filter (a triangle, FWHM = resolution, no range
     sidelobes) followed by a band-limited receiver's causal exponential tail (RC recovery), so the smear is
     asymmetric: energy only trails towards longer range beyond the triangle.
@@ -256,7 +262,8 @@ def _stepped_gain_db(frame: SonarImage, p: dict[str, float]) -> tuple[np.ndarray
             absorption_db_per_m=Param(inside=(0.2, 1.0), wide=(0.0, 2.5), catalogue="absorption_db_per_m"),
             step_db=Param(inside=(3.0, 8.0), wide=(0.5, 12.0)),
             looks=Param(inside=(2.0, 4.0), wide=(1.0, 8.0), integer=True))
-def stepped_gain_multilook(x, frame, p, ping, instrument):
+def stepped_gain_multilook(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                           instrument: np.random.Generator) -> np.ndarray:
     """A TVG switched in discrete gain steps: the signal keeps a sawtooth residual of +-step/2 dB about the ideal
     spreading-and-absorption law, and pre-TVG electronic noise comes out as a staircase floor (rms
     `noise_amplitude` at the maximum range).
@@ -280,7 +287,8 @@ def stepped_gain_multilook(x, frame, p, ping, instrument):
             thickness_m=Param(inside=(0.02, 0.15), wide=(0.005, 0.4), catalogue="thickness_m"),
             repeat_m=Param(inside=(2.0, 5.0), wide=(0.5, 15.0)),
             spread_deg=Param(inside=(3.0, 12.0), wide=(0.5, 40.0)))
-def periodic_pulse_comb(x, frame, p, ping, instrument):
+def periodic_pulse_comb(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                        instrument: np.random.Generator) -> np.ndarray:
     """An unsynchronised periodic source (a DVL or another sonar pinging faster than us): within one ping its
     pulses arrive at a regular apparent-range spacing `repeat_m` whose phase drifts randomly from ping to ping, from
     one fixed bearing (per recording).
@@ -312,7 +320,8 @@ def _ring_extent_m(p: dict[str, float]) -> float:
             beam_ripple=Param(inside=(0.2, 0.6), wide=(0.0, 1.2), catalogue="beam_ripple"),
             beat_m=Param(inside=(0.03, 0.1), wide=(0.01, 0.4)),
             beat_depth=Param(inside=(0.3, 0.8), wide=(0.0, 1.0)))
-def beating_fixed_pattern(x, frame, p, ping, instrument):
+def beating_fixed_pattern(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                          instrument: np.random.Generator) -> np.ndarray:
     """Transmit leakage ringing as two close transducer modes: an exponential envelope modulated by their beat
     |1 + m e^(i 2 pi d / beat)| / (1 + m), so the band shows fringes along range, and a smooth per-beam coupling
     pattern fixed by the hardware (drawn once per recording), not redrawn each ping.
@@ -332,7 +341,8 @@ def beating_fixed_pattern(x, frame, p, ping, instrument):
 @blind_form("gamma_quantization", "mu_law_truncate", strength="mu",
             gain=Param(inside=(0.6, 2.0), wide=(0.1, 8.0), catalogue="gain"),
             mu=Param(inside=(20.0, 255.0), wide=(0.5, 5000.0)))
-def mu_law_truncate(x, frame, p, ping, instrument):
+def mu_law_truncate(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                    instrument: np.random.Generator) -> np.ndarray:
     """Output mapping by mu-law companding, v = 255 ln(1 + mu g A) / ln(1 + mu), instead of a power law: nearly
     linear at small mu, logarithmic at large mu; then a truncating 8-bit ADC (floor, not round), saturating at 255.
     """
@@ -356,7 +366,8 @@ def _bracket_place(frame: SonarImage, p: dict[str, float]) -> Place:
             sector_width_deg=Param(inside=(8.0, 20.0), wide=(2.0, 45.0)),
             brightness=Param(inside=(0.4, 0.9), wide=(0.03, 1.2)),
             shadow_db=Param(inside=(-12.0, -4.0), wide=(-30.0, 0.0)))
-def bracket_arc_shadow(x, frame, p, ping, instrument):
+def bracket_arc_shadow(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                       instrument: np.random.Generator) -> np.ndarray:
     """A mounting bracket (or a housing edge) inside the fan: a fixed bright constant-range arc at `arc_range_m`
     across a bearing sector, and an acoustic shadow of `shadow_db` behind it in that sector, the same every ping.
 
@@ -392,7 +403,8 @@ def _board_place(frame: SonarImage, p: dict[str, float]) -> Place:
             board_beams=Param(inside=(16.0, 32.0), wide=(4.0, 64.0), integer=True),
             gain_db=Param(inside=(-8.0, -3.0), wide=(-14.0, -0.5)),
             flicker_db=Param(inside=(0.5, 1.5), wide=(0.0, 3.0)))
-def beam_board_gain(x, frame, p, ping, instrument):
+def beam_board_gain(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                    instrument: np.random.Generator) -> np.ndarray:
     """One contiguous group of beams formed on its own processing board (an FPGA lane or receiver card) with its own
     gain: a sharp-edged bearing sector offset by `gain_db` that also flickers by `flicker_db` rms from ping to ping.
 
