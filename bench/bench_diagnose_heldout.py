@@ -38,11 +38,11 @@ from sonar_realism.diagnose import DiagnoseConfig, diagnose
 from sonar_realism.diagnose.blind_forms import BLIND
 from sonar_realism.diagnose.heldout import (
     IMPLEMENTATIONS,
-    REGISTRIES,
     UNCATALOGUED,
     Implementation,
     Place,
     apply_held_out,
+    find_implementation,
 )
 from sonar_realism.diagnose.scene_terms import SceneStart
 from sonar_realism.diagnose.tuning_forms import TUNING
@@ -162,7 +162,7 @@ def in_place(read: Read, place: Place) -> bool:
 def run_case(sim: list[SonarImage], real_source: list[SonarImage], implementation: str | None, mode: str,
              params: dict[str, float], config: DiagnoseConfig, seed: int, scene: SceneStart | None = None,
              ) -> dict[str, Any]:
-    entry = next(known[implementation] for known in REGISTRIES if implementation in known) if implementation else None
+    entry = find_implementation(implementation) if implementation else None
     real = apply_held_out(real_source, implementation, params, seed) if implementation else real_source
     started = time.perf_counter()
     read = read_diagnosis(diagnose(sim, real, config, scene=scene))

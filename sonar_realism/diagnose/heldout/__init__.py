@@ -24,7 +24,8 @@ from sonar_realism.diagnose.heldout.base import (
     Param,
     Place,
     apply_held_out,
+    find_implementation,
 )
 
 __all__ = ["BLIND", "IMPLEMENTATIONS", "REGISTRIES", "TUNING", "UNCATALOGUED", "Implementation", "Param", "Place",
-           "apply_held_out"]
+           "apply_held_out", "find_implementation"]

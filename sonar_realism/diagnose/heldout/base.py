@@ -132,13 +132,19 @@ def _register(registry: dict[str, Implementation], family: str, form: str,
     return register
 
 
-def apply_held_out(frames: list[SonarImage], name: str, params: dict[str, float], seed: int) -> list[SonarImage]:
-    """The "real" frames: `frames` with validation implementation `name` (of any of the three sets) applied
-    (per-frame draws from `seed`)."""
+def find_implementation(name: str) -> Implementation:
+    """Validation implementation `name` of any of the three sets (ConfigError naming the known ones if none)."""
     entry = next((known[name] for known in REGISTRIES if name in known), None)
     if entry is None:
         known_names = sorted(n for known in REGISTRIES for n in known)
         raise ConfigError(f"no validation implementation {name!r}; have {known_names}")
+    return entry
+
+
+def apply_held_out(frames: list[SonarImage], name: str, params: dict[str, float], seed: int) -> list[SonarImage]:
+    """The "real" frames: `frames` with validation implementation `name` (of any of the three sets) applied
+    (per-frame draws from `seed`)."""
+    entry = find_implementation(name)
     out = []
     for index, frame in enumerate(frames):
         ping = np.random.default_rng([seed, index])
