@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sonar_realism.models.speckle_fit import top_ratio  # noqa: E402
 from sonar_realism.sim.calibrate import CalibrateConfig, load_recording, match_export_knee  # noqa: E402
 from sonar_realism.sim.calibration import load_calibration, save_calibration  # noqa: E402
-from sonar_realism.sim.fingerprint import per_frame_rescaled  # noqa: E402
+from sonar_realism.sim.fingerprint import fingerprint, per_frame_rescaled  # noqa: E402
 from sonar_realism.sim.texture import with_export_knee  # noqa: E402
 
 
@@ -41,7 +41,7 @@ def main() -> int:
     calibration = dataclasses.replace(calibration, texture=with_export_knee(calibration.texture, images))
     around_means = calibration.texture.export_knee
     config = CalibrateConfig()
-    calibration = match_export_knee(calibration, calibration.effect_chain(),
+    calibration = match_export_knee(calibration, calibration.effect_chain(), fingerprint(images),
                                      float(np.median([top_ratio(i) for i in images])), config.mounting_frames,
                                      config.seed)
     save_calibration(calibration, args.out)

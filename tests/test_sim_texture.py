@@ -17,6 +17,7 @@ from sonar_realism.models.speckle_fit import top_ratio
 from sonar_realism.sim.calibrate import match_export_knee, match_noise_floor, noise_of, sim_images
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
 from sonar_realism.sim.calibration import load_calibration, save_calibration
+from sonar_realism.sim.fingerprint import distance, fingerprint
 from sonar_realism.sim.measure import near_zero_fraction
 from sonar_realism.sim.texture import LearnedSensorTexture, fit_learned_texture, fit_row_gain, fit_texture, local_mean
 from tests.test_sim_calibrate import truth
@@ -190,11 +191,21 @@ def test_noise_floor_under_the_texture_draws_the_recordings_share_of_black_pixel
     assert match_noise_floor(calibration, chain, 0.0, 6, 0) == list(chain)
 
 
-def test_export_knee_gives_the_recordings_top_of_the_range_and_old_files_clip(texture, tmp_path) -> None:
-    """Under a hard clip the calibrated sim piles its brightest speckle at 255 (0.35 % of the pixels here); the
-    knee matched on the simulated frames bends it to the recording's ratio of 99.9th percentile to maximum."""
+def clipping_calibration(texture):
+    """A calibration whose export clips: its brightest speckle piles up at 255 under a hard knee."""
     effects = {**truth().effects, "gamma_quantization": {**truth().effects["gamma_quantization"], "gain": 0.3}}
-    calibration = dataclasses.replace(truth(), texture=texture, effects=effects)
+    return dataclasses.replace(truth(), texture=texture, effects=effects)
+
+
+def with_knee(calibration, knee: float):
+    return dataclasses.replace(calibration, texture=dataclasses.replace(calibration.texture, export_knee=knee))
+
+
+def test_export_knee_gives_the_recordings_top_of_the_range_and_old_files_clip(texture, tmp_path) -> None:
+    """Under a hard clip the calibrated sim piles its brightest speckle at 255 (0.35 % of the pixels here); a
+    "recording" made by the same sim under knee 0.5 has its knee found again: its ratio of 99.9th percentile to
+    maximum is reached, and its fingerprint allows it."""
+    calibration = clipping_calibration(texture)
     chain = calibrated_chain(calibration, "all")
 
     def top_and_full_share(candidate) -> tuple[float, float]:
@@ -203,12 +214,33 @@ def test_export_knee_gives_the_recordings_top_of_the_range_and_old_files_clip(te
                 float(np.mean([np.mean(image >= image.max()) for image in images])))
 
     assert texture.export_knee == 1.0  # nothing to bend around the grainy frames' own means
+    recording = sim_images(with_knee(calibration, 0.5), chain, 6, 0)
+    recording_top = float(np.median([top_ratio(image) for image in recording]))
     clipped_top, clipped_full = top_and_full_share(calibration)
-    matched = match_export_knee(calibration, chain, 0.95, 6, 0)
+    matched = match_export_knee(calibration, chain, fingerprint(recording), recording_top, 6, 0)
     bent_top, bent_full = top_and_full_share(matched)
-    assert clipped_top == 1.0 and clipped_full > 0.002
-    assert matched.texture.export_knee < 1.0 and bent_top == pytest.approx(0.95, abs=0.01)
+    assert clipped_top == 1.0 and clipped_full > 0.002 and recording_top < 0.99
+    assert matched.texture.export_knee == pytest.approx(0.5, abs=0.1)
+    assert bent_top == pytest.approx(recording_top, abs=0.01)
     assert bent_full < clipped_full / 10
+
+
+def test_export_knee_does_not_bend_the_range_further_than_the_fingerprint_allows(texture) -> None:
+    """A recording whose top ratio is lower than its level allows (a few bright pixels over a clipped body, say):
+    reaching the ratio would bend the whole upper range away from the recording's histogram and profiles, so the
+    knee stops where the fingerprint distance starts to grow."""
+    calibration = clipping_calibration(texture)
+    chain = calibrated_chain(calibration, "all")
+    recording = sim_images(calibration, chain, 6, 0)  # the hard clip itself is the recording's look
+    matched = match_export_knee(calibration, chain, fingerprint(recording), 0.5, 6, 0)
+    assert matched.texture.export_knee >= 0.8
+    lowest = with_knee(calibration, 0.05)
+    assert distance(fingerprint(sim_images(lowest, chain, 6, 0)), fingerprint(recording))["total"] > 1.05 * \
+        distance(fingerprint(sim_images(matched, chain, 6, 0)), fingerprint(recording))["total"]
+
+
+def test_calibration_files_carry_the_export_knee(texture, tmp_path) -> None:
+    matched = with_knee(clipping_calibration(texture), 0.5)
     path = tmp_path / "calib.json"
     save_calibration(matched, path)
     assert load_calibration(path).texture.export_knee == matched.texture.export_knee

@@ -40,7 +40,7 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
-from sonar_realism.models.speckle_fit import highest_knee_at, top_ratio
+from sonar_realism.models.speckle_fit import EXPORT_KNEE_LOW, top_ratio
 from sonar_realism.sim import measure
 from sonar_realism.sim.calibrated import (
     SeabedLook,
@@ -85,6 +85,11 @@ TEXTURES = ("none", "speckle", "learned")
 # of the amplitude the effect fit found.
 MIN_BLACK_SHARE = 1e-3
 FLOOR_RANGE = 16.0
+# the export knee's ladder (full-scale units), bisection steps between two of its knees, and how far above the best
+# fingerprint distance on the ladder a knee may be (a share of it) and still be allowed
+KNEE_STEP = 0.1
+KNEE_REFINE = 4
+KNEE_DISTANCE_SLACK = 0.05
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
 FITTED: tuple[tuple[str, str, bool], ...] = calibrated_parameters()
@@ -326,14 +331,19 @@ def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_ne
     return with_amplitude((low + high) / 2)
 
 
-def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_top: float, n: int,
-                      seed: int) -> Calibration:
+def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real: Fingerprint, real_top: float,
+                      n: int, seed: int) -> Calibration:
     """The calibration with the highest export knee at which its simulated frames (texture, gain and export
-    included) have the recording's median ratio of the 99.9th percentile to the maximum (`speckle_fit.top_ratio`,
-    `highest_knee_at`), searched down from the knee the texture fit found around the recording's own local means.
+    included) have the recording's median ratio of the 99.9th percentile to the maximum (`speckle_fit.top_ratio`),
+    among the knees that cost the fingerprint nothing: those within KNEE_DISTANCE_SLACK of the best fingerprint
+    distance on a ladder down from the knee the texture fit found around the recording's own local means.
+
     The simulated level reaches full scale over more of the frame than the recording's local mean does (target
     highlights, the residual gain): under the texture fit's knee the calibrated Oculus sim still put 0.05 % of
-    its pixels at 255, where the recording has one or two per frame."""
+    its pixels at 255, where the recording has one or two per frame. Matched on the top ratio alone, the knee fell
+    to 0.08-0.13 of full scale on both sensors, bending the whole upper range; on the ARIS set that doubled the
+    range and bearing profile errors (fingerprint distance 0.24 at knee 1.0, 0.33 at 0.08). Where no allowed
+    knee reaches the recording's ratio, the allowed knee with the lowest ratio."""
     assert calibration.texture is not None
     clean = clean_views(calibration, n, seed)  # the knee changes the export only
 
@@ -341,10 +351,29 @@ def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real_to
         texture = dataclasses.replace(calibration.texture, export_knee=round(knee, 4))
         return dataclasses.replace(calibration, texture=texture)
 
-    def top(knee: float) -> float:
-        return float(np.median([top_ratio(i) for i in finished_images(with_knee(knee), clean, chain, seed)]))
+    def trial(knee: float) -> tuple[float, float]:
+        images = finished_images(with_knee(knee), clean, chain, seed)
+        return (float(np.median([top_ratio(i) for i in images])),
+                distance(fingerprint(images), real)["total"])
 
-    return with_knee(highest_knee_at(top, real_top, calibration.texture.export_knee, step=0.1, refine=4))
+    start = calibration.texture.export_knee
+    ladder = [float(k) for k in np.arange(start, EXPORT_KNEE_LOW, -KNEE_STEP)] + [EXPORT_KNEE_LOW]
+    ladder = sorted(set(ladder), reverse=True)
+    trials = {knee: trial(knee) for knee in ladder}
+    best = min(d for _, d in trials.values())
+    allowed = [k for k in ladder if trials[k][1] <= best * (1 + KNEE_DISTANCE_SLACK)]
+    reaching = [k for k in allowed if trials[k][0] <= real_top]
+    if not reaching:
+        return with_knee(min(allowed, key=lambda k: trials[k][0]))
+    knee = max(reaching)
+    above = ladder[ladder.index(knee) - 1] if knee != ladder[0] else None
+    if above in allowed:  # the least compression that does it, between two ladder knees
+        low, high = knee, above
+        for _ in range(KNEE_REFINE):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if trial(middle)[0] <= real_top else (low, middle)
+        knee = low
+    return with_knee(knee)
 
 
 def _with_noise_floor_interval(fitted: tuple[FittedParameter, ...], calibration: Calibration,
@@ -595,7 +624,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     if calibration.texture is not None:
         # the top of the range under the final gain: the gain and the highlights set how often the level nears
         # full scale
-        calibration = match_export_knee(calibration, chain, real_top, config.mounting_frames, seed)
+        calibration = match_export_knee(calibration, chain, target, real_top, config.mounting_frames, seed)
     m = calibration.mounting
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
         f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {noise_of(chain).noise_amplitude:.4f}"
