@@ -141,6 +141,33 @@ def test_two_sample_test_near_chance_for_a_perfect_translator_and_high_for_raw_s
     assert separable.accuracy > 0.9 and separable.auc > 0.9
 
 
+def test_two_sample_figures_do_not_depend_on_the_thread_count() -> None:
+    """torch's CPU kernels split sums by thread: unpinned, one texture test read 0.92 on two threads and 0.99 on
+    one. Both tests now train on one thread and give the caller's thread count back, even after an error."""
+    import torch
+
+    from sonar_realism.evaluate.two_sample import TextureTestConfig, one_thread, texture_two_sample_test
+
+    rng = np.random.default_rng(3)
+    real = [rng.gamma(1.0, 1.0, (64, 64)).astype(np.float32) for _ in range(12)]
+    near = [rng.gamma(1.1, 1.0, (64, 64)).astype(np.float32) for _ in range(12)]
+    config = TextureTestConfig(epochs=2, patches_per_frame=8)
+    before = torch.get_num_threads()
+    try:
+        results = []
+        for threads in (2, 1):
+            torch.set_num_threads(threads)
+            results.append(texture_two_sample_test(real, near, config))
+            assert torch.get_num_threads() == threads
+        assert results[0] == results[1]
+        with pytest.raises(RuntimeError), one_thread():
+            assert torch.get_num_threads() == 1
+            raise RuntimeError("inside")
+        assert torch.get_num_threads() == 1  # the count set before it, given back
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_two_sample_scores_each_fold_on_its_own_so_a_shifted_fold_does_not_collapse_to_chance():
     from sonar_realism.evaluate.two_sample import _FoldScores, _held_out_result
 

@@ -15,6 +15,8 @@ real: label-free, chance stays 0.5), and the AUC counts only pairs within a fold
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -74,6 +76,20 @@ def _held_out_result(folds: list[_FoldScores]) -> TwoSampleResult:
                            n_generated=n_generated)
 
 
+@contextmanager
+def one_thread() -> Iterator[None]:
+    """torch on one thread inside, the caller's count restored after. torch's CPU kernels split their sums by
+    thread, so the same inputs and seed trained another classifier on another thread count: one texture test read
+    0.92 on two threads and 0.99 on one (2026-11-24). On one thread a test's figure is the machine's, not its
+    load's or its settings'."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 def _folds(n: int, k: int) -> list[np.ndarray]:
     return [chunk for chunk in np.array_split(np.arange(n), k) if chunk.size]
 
@@ -87,11 +103,13 @@ def classifier_two_sample_test(real: np.ndarray, generated: np.ndarray, folds: i
         raise ConfigError(f"two-sample test: need >= {folds} images per set, got {len(real)} and {len(generated)}")
     config = replace(config, grid=tuple(real.shape[1:]), seed=seed)
     scored = []
-    for real_test, gen_test in zip(_folds(len(real), folds), _folds(len(generated), folds), strict=True):
-        real_train = np.delete(real, real_test, axis=0)
-        gen_train = np.delete(generated, gen_test, axis=0)
-        model = train_classifier(real_train, gen_train, config)
-        scored.append(_FoldScores(realism_scores(model, real[real_test]), realism_scores(model, generated[gen_test])))
+    with one_thread():
+        for real_test, gen_test in zip(_folds(len(real), folds), _folds(len(generated), folds), strict=True):
+            real_train = np.delete(real, real_test, axis=0)
+            gen_train = np.delete(generated, gen_test, axis=0)
+            model = train_classifier(real_train, gen_train, config)
+            scored.append(_FoldScores(realism_scores(model, real[real_test]),
+                                      realism_scores(model, generated[gen_test])))
     return _held_out_result(scored)
 
 
@@ -192,11 +210,12 @@ def texture_two_sample_test(real: list[np.ndarray], generated: list[np.ndarray],
     real_patches = texture_patches(real, config, config.seed)
     generated_patches = texture_patches(generated, config, config.seed + 1)
     scored = []
-    for real_test, gen_test in zip(_folds(len(real), config.folds), _folds(len(generated), config.folds),
-                                   strict=True):
-        flat = (-1, config.patch, config.patch)
-        model = _train_patch_classifier(np.delete(real_patches, real_test, axis=0).reshape(flat),
-                                        np.delete(generated_patches, gen_test, axis=0).reshape(flat), config)
-        scored.append(_FoldScores(_frame_scores(model, real_patches[real_test]),
-                                  _frame_scores(model, generated_patches[gen_test])))
+    flat = (-1, config.patch, config.patch)
+    with one_thread():
+        for real_test, gen_test in zip(_folds(len(real), config.folds), _folds(len(generated), config.folds),
+                                       strict=True):
+            model = _train_patch_classifier(np.delete(real_patches, real_test, axis=0).reshape(flat),
+                                            np.delete(generated_patches, gen_test, axis=0).reshape(flat), config)
+            scored.append(_FoldScores(_frame_scores(model, real_patches[real_test]),
+                                      _frame_scores(model, generated_patches[gen_test])))
     return _held_out_result(scored)
