@@ -235,3 +235,32 @@ def test_a_recording_whose_seabed_fills_the_window_is_calibrated_with_the_mounti
     assert c.mounting.height_m.value / np.sin(lower_edge) == pytest.approx(2.0, rel=0.05)  # first return at 2 m
     first_rows = np.stack([image[:16] for image in result.examples["calibrated sim"]])
     assert (first_rows <= 2 / 255).mean() < 0.2  # the calibrated sim shows seabed from the window's start too
+
+
+def low_mounted(roughness_m: float, dark_fraction: float = 0.0) -> Calibration:
+    """A sensor 0.2 m over a floor, looking out 1.4-5.8 m (the ARIS tank's geometry): grazing 2-8 deg, where each
+    centimetre of roughness shadows tens of range bins. No targets."""
+    mode = GridMode(n_beams=96, n_ranges=220, min_range_m=1.4, max_range_m=5.8, fov_deg=30.0, weight=1.0)
+    return dataclasses.replace(
+        truth(), grid=Grid((mode,), "recording", "recording"),
+        mounting=Mounting(exact(0.2), exact(4.4), exact(0.0), exact(0.0), 14.0),
+        seabed=SeabedTerms(exact(0.1), exact(2.0), exact(8.0), exact(dark_fraction), exact(roughness_m)))
+
+
+@pytest.mark.parametrize(("roughness", "dark_patches", "most"), [(0.001, 0.0, 0.007), (0.01, 0.3, 0.01)])
+def test_relief_match_keeps_no_more_roughness_than_the_recordings_dark_seabed_allows(
+        roughness: float, dark_patches: float, most: float) -> None:
+    """Started from the renderer's 1 cm: over a smooth floor the 1 cm shadows darken more of the seabed than
+    the recording shows, so the relief match comes down; where the recording's seabed is darker than any relief
+    makes it (dark sediment patches), the 1 cm stays and the dark share is left to the albedo."""
+    from sonar_realism.sim.calibrate import _match_relief, _seabed_summary, _seabed_table
+    from sonar_realism.sim.fingerprint import per_frame_rescaled
+
+    recording = [per_frame_rescaled(f.intensity)
+                 for f, _ in simulate_calibrated(low_mounted(roughness, dark_patches), 8, seed=5)]
+    real = _seabed_summary(_seabed_table(recording))
+    calibration = low_mounted(0.01)
+    look = SeabedLook.of(calibration.seabed)
+    matched = _match_relief(calibration, calibration.effect_chain(), look, real, 8, 0)
+    assert matched.roughness_m <= most and (matched.roughness_m == 0.01) == (most == 0.01)
+    assert dataclasses.replace(matched, roughness_m=look.roughness_m) == look  # nothing else moves
