@@ -10,7 +10,8 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    vertical aperture) where the frame's seabed onset is, across the fan (its curvature gives the tilt); the
    median is the mounting, the spread the heave/pitch; then the height is corrected so the simulated onset
    lands on the real one (the same detector on both);
-3. the seabed: patch contrast, correlation length and dark share of the mean level, matched by simulation;
+3. the seabed: its roughness (`_match_relief`: no more relief shadow than the recording's dark seabed allows),
+   then patch contrast, correlation length and dark share of the mean level, matched by simulation;
    targets: how often a long shadow shows, its width (the target's size) and where it starts;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py);
@@ -19,7 +20,7 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    again under it;
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
    noise floor (the TVG noise amplitude whose share of black pixels is the recording's) and the residual
-   range/bearing gain;
+   range/bearing gain; last the export knee (`match_export_knee`);
 7. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
    short local search from the fit), 5th-95th percentiles.
 """
