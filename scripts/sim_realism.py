@@ -14,7 +14,8 @@ Measures (all on frames scaled by their own maximum, the real export's rule):
 - near-zero pixel fraction (<= 2 counts of 255);
 - mean range and bearing profiles (48 bins): mean |sim - real| over the real profile's mean;
 - speckle contrast (evaluate.texture.speckle_statistics per frame, mean over range bands);
-- grain: lag-1 correlation of the detrended frame along range and across beams (evaluate.statistics).
+- grain: lag-1 correlation of the detrended frame along range and across beams (evaluate.statistics);
+- the texture's range asymmetry (evaluate.texture.range_asymmetry), beside the held-out recording's.
 Classifier tests are averaged over --seeds (each seed: new sim frames and a new classifier initialisation).
 """
 
@@ -36,7 +37,7 @@ import torch  # noqa: E402
 
 from sonar_realism.data import OCULUS_FIT_RECORDING, OCULUS_HELD_OUT_RECORDING, real_aris_dir, real_oculus_dir  # noqa: E402
 from sonar_realism.evaluate.statistics import _detrend, lag_correlation  # noqa: E402
-from sonar_realism.evaluate.texture import speckle_statistics  # noqa: E402
+from sonar_realism.evaluate.texture import range_asymmetry, speckle_statistics  # noqa: E402
 from sonar_realism.evaluate.two_sample import (  # noqa: E402
     TextureTestConfig,
     classifier_two_sample_test,
@@ -65,7 +66,7 @@ def statistics(images: list[np.ndarray]) -> dict[str, object]:
     across = np.mean([lag_correlation(_detrend(i[None], 9), 2, 1)[0, 0] for i in images])
     return {"near_zero": float(np.mean([near_zero_fraction(i) for i in images])), "range_profile": rows,
             "bearing_profile": cols, "speckle_contrast": float(contrast), "grain_range": float(along),
-            "grain_beams": float(across)}
+            "grain_beams": float(across), "range_asymmetry": range_asymmetry(images)}
 
 
 def compare(candidate: dict[str, object], real: dict[str, object]) -> dict[str, float]:
@@ -75,6 +76,9 @@ def compare(candidate: dict[str, object], real: dict[str, object]) -> dict[str, 
         out[f"{key}_rel"] = float(np.abs(a - b).mean() / max(float(b.mean()), 1e-9))
     for key in ("speckle_contrast", "grain_range", "grain_beams"):
         out[f"{key}_rel"] = float(candidate[key]) / float(real[key]) - 1
+    # a signed skewness near 0 for symmetric texture: the two values side by side, not a ratio
+    out["range_asymmetry"], out["range_asymmetry_real"] = float(candidate["range_asymmetry"]), float(
+        real["range_asymmetry"])
     return out
 
 

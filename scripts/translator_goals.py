@@ -14,7 +14,8 @@ from their masks/ folder). Every method is scored on the same inputs:
 - texture two-sample accuracy (32 x 32 native-resolution patches, level removed) and whole-frame two-sample
   accuracy (128 x 128 model grid), first sample of each input;
 - speckle contrast and K shape per range band (model grid), grain (lag-1 correlation along range and across
-  beams, native resolution), relative to the held-out real recording;
+  beams, native resolution), relative to the held-out real recording; the texture's range asymmetry
+  (evaluate.texture.range_asymmetry, native), beside the held-out recording's;
 - diversity: per-pixel std over `--n` samples of one input / per-pixel std between inputs (native);
 - structure: object-mask IoU of the output over that of the input, edge SSIM of the posterior mean
   (temperature 0) against the input.
@@ -42,7 +43,7 @@ from sonar_realism.data import (  # noqa: E402
 )
 from sonar_realism.evaluate.diversity import sample_diversity  # noqa: E402
 from sonar_realism.evaluate.structure import edge_ssim, mask_iou, mask_to_grid  # noqa: E402
-from sonar_realism.evaluate.texture import grain, speckle_statistics  # noqa: E402
+from sonar_realism.evaluate.texture import grain, range_asymmetry, speckle_statistics  # noqa: E402
 from sonar_realism.evaluate.two_sample import (  # noqa: E402
     TextureTestConfig,
     classifier_two_sample_test,
@@ -99,7 +100,8 @@ def texture_statistics(native: list[np.ndarray], grid: np.ndarray) -> dict[str, 
     g = grain(native)
     return {"contrast": float(np.nanmean([b.contrast for b in bands])),
             "k_shape": float(np.nanmean([b.k_shape for b in bands])),
-            "grain_range": g.along_range, "grain_beams": g.across_beams}
+            "grain_range": g.along_range, "grain_beams": g.across_beams,
+            "range_asymmetry": range_asymmetry(native)}
 
 
 def main() -> int:
@@ -194,15 +196,16 @@ def markdown(record: dict) -> str:
     real = record["real_held_out"]
     lines = ["| method | texture 2-sample: accuracy (AUC), per seed | whole-frame 2-sample: accuracy (AUC), per seed "
              "| contrast / real | K shape / real "
-             "| grain range / real | grain beams / real | diversity (std ratio) | mask IoU / input's "
-             "| edge SSIM (mean) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "| grain range / real | grain beams / real | range asymmetry (real's) | diversity (std ratio) "
+             "| mask IoU / input's | edge SSIM (mean) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, row in record["methods"].items():
         diversity = row.get("diversity")
         lines.append(
             f"| {name} | {_runs(row, 'texture')} | {_runs(row, 'whole_frame')} "
             f"| {row['contrast'] / real['contrast']:.2f} | {row['k_shape'] / real['k_shape']:.2f} "
             f"| {row['grain_range'] / real['grain_range']:.2f} | {row['grain_beams'] / real['grain_beams']:.2f} "
+            f"| {row.get('range_asymmetry', float('nan')):+.2f} ({real.get('range_asymmetry', float('nan')):+.2f}) "
             f"| {diversity['std_ratio'] if diversity else float('nan'):.2f} "
             f"| {row.get('mask_iou_ratio') or float('nan'):.2f} | {row.get('edge_ssim_mean', float('nan')):.2f} |")
     return "\n".join(lines)

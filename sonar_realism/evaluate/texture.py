@@ -186,3 +186,28 @@ def grain(frames: list[np.ndarray]) -> Grain:
         along.append(float((texture[1:] * texture[:-1]).mean()) / power)
         across.append(float((texture[:, 1:] * texture[:, :-1]).mean()) / power)
     return Grain(along_range=float(np.mean(along)), across_beams=float(np.mean(across)))
+
+
+def range_asymmetry(frames: list[np.ndarray]) -> float:
+    """Mean over frames of the skewness of the log-intensity steps along range on the lit seabed: > 0 where the
+    texture rises sharply and falls slowly with range, 0 for any texture that looks the same read backwards.
+
+    A texture's grain, marginal and whole power spectrum are all blind to the direction of range; real sonar
+    texture is not (the Oculus recordings: +0.58 and +0.30), while texture drawn from a Gaussian field through a
+    pointwise map, as the speckle layer's, reads 0 whatever its grain (-0.01 for the calibrated sim). Each frame is
+    scaled to its maximum; lit pixels are those whose 15 x 15 local mean is above the frame's median local mean;
+    one count (1/255) is added before the log so the black floor does not dominate."""
+    if not frames:
+        raise ConfigError("range asymmetry: no frames")
+    skews = []
+    for frame in frames:
+        image = np.asarray(frame, np.float32)
+        image = image / max(float(image.max()), 1e-12)
+        local = cv2.blur(image, (15, 15))
+        lit = local > np.median(local)
+        steps = np.diff(np.log(image + 1 / 255), axis=0)[lit[1:] & lit[:-1]].astype(np.float64)
+        if steps.size < 3 or steps.std() == 0:
+            continue
+        centred = steps - steps.mean()
+        skews.append(float((centred ** 3).mean() / (centred ** 2).mean() ** 1.5))
+    return float(np.mean(skews)) if skews else math.nan
