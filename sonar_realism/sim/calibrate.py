@@ -377,10 +377,15 @@ def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real: F
         texture = dataclasses.replace(calibration.texture, export_knee=round(knee, 4))
         return dataclasses.replace(calibration, texture=texture)
 
+    def images_at(knee: float) -> list[np.ndarray]:
+        return finished_images(with_knee(knee), clean, chain, seed)
+
+    def top(images: Sequence[np.ndarray]) -> float:
+        return float(np.median([top_ratio(i) for i in images]))
+
     def trial(knee: float) -> tuple[float, float]:
-        images = finished_images(with_knee(knee), clean, chain, seed)
-        return (float(np.median([top_ratio(i) for i in images])),
-                distance(fingerprint(images), real)["total"])
+        images = images_at(knee)
+        return top(images), distance(fingerprint(images), real)["total"]
 
     start = calibration.texture.export_knee
     ladder = [float(k) for k in np.arange(start, EXPORT_KNEE_LOW, -KNEE_STEP)] + [EXPORT_KNEE_LOW]
@@ -397,7 +402,7 @@ def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real: F
         low, high = knee, above
         for _ in range(KNEE_REFINE):
             middle = 0.5 * (low + high)
-            low, high = (middle, high) if trial(middle)[0] <= real_top else (low, middle)
+            low, high = (middle, high) if top(images_at(middle)) <= real_top else (low, middle)
         knee = low
     return with_knee(knee)
 
