@@ -24,7 +24,14 @@ from sonar_realism.diagnose.gap import (
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
-from sonar_realism.diagnose.which import SelectionProblem, Solo, coordinate_search, greedy_select, physics_off
+from sonar_realism.diagnose.which import (
+    SelectionProblem,
+    Solo,
+    coordinate_search,
+    greedy_select,
+    physics_off,
+    signature_starts,
+)
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
@@ -398,6 +405,21 @@ def test_multipath_without_its_ghost_is_not_blamed_and_a_true_ghost_is():
     rng = np.random.default_rng(0)
     true = diagnose(frames[0::2], [apply_effects(f, [ghost], rng) for f in frames[1::2]], config)
     assert true.selected == ("multipath",) and true.unconfirmed == ()
+
+
+def test_the_multipath_search_also_starts_where_the_fit_split_shows_its_ghost():
+    # The statistics barely change with a ghost's offset, so a search from the catalogue's 1.5 m left a ghost 3.7 m
+    # out at 1.5 m, and the ghost check then looked at the wrong lag (#13, 2026-11-24). The fit split's own
+    # frames say where the copy is: the lag where real content correlates most beyond the sim's.
+    frames = sim_frames(24, seed=3)
+    ghost = make_effect("multipath", reflection_coeff=0.5, ghost_offset_m=6.0)
+    rng = np.random.default_rng(0)
+    real = np.stack([apply_effects(f, [ghost], rng).normalized() for f in frames[1::2]])
+    sim = np.stack([f.normalized() for f in frames[0::2]])
+    ranges = frames[0].ranges_m
+    start = signature_starts(real, sim, ranges)["multipath"]
+    assert start.ghost_offset_m == pytest.approx(6.0, abs=1.5 * (ranges[1] - ranges[0]))
+    assert start.reflection_coeff == make_effect("multipath").reflection_coeff  # only the offset is located
 
 
 def test_lag_correlation_peaks_at_a_copy_of_each_frames_content():

@@ -59,6 +59,7 @@ from sonar_realism.diagnose.which import (
     fit_gain_pattern,
     greedy_select,
     rank_effects,
+    signature_starts,
 )
 from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
@@ -167,9 +168,11 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
+    starts = signature_starts(real_fit, corrected_images(fit_frames, [], config.search.seed, config.normalize),
+                              reference.ranges_m)
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
-                               real_images=real_hold, sim_images=holdout_images)
+                               real_images=real_hold, sim_images=holdout_images, signature_starts=starts)
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)

@@ -70,3 +70,15 @@ def check_ghost(real_curve: np.ndarray, sim_curve: np.ndarray, lag_bins: float) 
 def ghost_lag_bins(offset_m: float, ranges_m: np.ndarray) -> float:
     """A range offset in range bins (the mean bin, as the catalogue's multipath shifts by)."""
     return offset_m * (ranges_m.size - 1) / float(ranges_m[-1] - ranges_m[0])
+
+
+def ghost_lag_peak(real_curve: np.ndarray, sim_curve: np.ndarray, lowest: int, highest: int) -> int:
+    """The lag in [lowest, highest] (range bins) where the real frames' excess correlation over the sim's peaks:
+    where a ghost would put each frame's scene again. A start for the multipath search, not a verdict: the
+    statistics the search minimises barely change with the ghost's offset (a tuning multipath 3.7 m out was
+    fitted at the catalogue's 1.5 m, and its ghost check then looked at the wrong lag and dropped it)."""
+    excess = real_curve - sim_curve
+    lowest, highest = max(1, lowest), min(len(excess) - 1, highest)
+    if lowest > highest:
+        return lowest
+    return lowest + int(np.argmax(excess[lowest:highest + 1]))

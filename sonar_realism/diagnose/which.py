@@ -30,7 +30,13 @@ import numpy as np
 from sonar_realism.diagnose.arcs import ArcCheck, check_arcs
 from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
 from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
-from sonar_realism.diagnose.ghost import GhostCheck, check_ghost, ghost_lag_bins, range_lag_correlation
+from sonar_realism.diagnose.ghost import (
+    GhostCheck,
+    check_ghost,
+    ghost_lag_bins,
+    ghost_lag_peak,
+    range_lag_correlation,
+)
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     Alternative,
@@ -56,6 +62,8 @@ GAIN_LIMIT_DB = 20.0
 SPOT_MIN_DB = 1.0
 MEASURED_WEIGHT = 0.3  # of the strongest row's or beam's weight (sqrt of mean signal): about 10% of its signal
 MAX_SPOTS = 8
+# A ghost nearer than this many range bins is the grain's own correlation, not a copy of the scene.
+GHOST_MIN_LAG = 4
 # An added-power band (a reflection inside the housing: the same delay every ping) is looked for beyond this share
 # of the range span: nearer in, a fixed band is the transducer's ring-down, which the catalogue has.
 BAND_MIN_START = 0.1
@@ -396,10 +404,29 @@ class SelectionProblem:
     scene_terms: Mapping[str, SceneTerm] = dataclasses.field(default_factory=dict)
     real_images: np.ndarray | None = None
     sim_images: Callable[[Sequence[Effect]], np.ndarray] | None = None
+    signature_starts: Mapping[str, Effect] = dataclasses.field(default_factory=dict)
 
     def start(self, name: str) -> Effect:
         """Where a candidate's search starts: a geometry or scene term's start, else the catalogue's default."""
         return self.scene_terms[name] if name in self.scene_terms else make_effect(name)
+
+    def other_starts(self, name: str) -> list[Effect]:
+        """Starts the search also scores, taking whichever fits best: one the fit split's own signature of the
+        effect locates (`signature_starts`: a multipath at the ghost's lag)."""
+        return [self.signature_starts[name]] if name in self.signature_starts else []
+
+
+def signature_starts(real_fit: np.ndarray, sim_fit: np.ndarray, ranges_m: np.ndarray) -> dict[str, Effect]:
+    """Starts located by an effect's signature on the fit split (real fit frames against the raw sim fit
+    frames): a multipath whose ghost offset is the lag where the real frames' per-frame content correlates most
+    beyond the sim's, within the effect's offset bounds."""
+    bin_m = float(ranges_m[-1] - ranges_m[0]) / max(len(ranges_m) - 1, 1)
+    if bin_m <= 0:
+        return {}
+    low_m, high_m = Multipath.PARAM_BOUNDS["ghost_offset_m"]
+    lag = ghost_lag_peak(range_lag_correlation(real_fit), range_lag_correlation(sim_fit),
+                         max(GHOST_MIN_LAG, math.ceil(low_m / bin_m)), int(high_m / bin_m))
+    return {Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=lag * bin_m)}
 
 
 @dataclass(frozen=True)
@@ -446,7 +473,8 @@ def rank_effects(names: Sequence[str], problem: SelectionProblem, config: Diagno
     often it ranks first over bootstrap resamples of the held-out frames."""
     def solo(name: str) -> tuple[str, Fit, float, Stats | None]:
         fit = fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, start=problem.start(name),
-                         search=config.search, statistics=config.statistics, normalize=config.normalize)
+                         search=config.search, statistics=config.statistics, normalize=config.normalize,
+                         alternatives=problem.other_starts(name))
         return (name, fit, *problem.holdout([fit.effect], None))
 
     fitted = parallel_map(solo, names, config.workers)
@@ -517,7 +545,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         # does not come back
         return fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, base=base, start=start,
                           search=one_round, statistics=c.statistics, normalize=c.normalize,
-                          alternatives=[problem.start(name)])
+                          alternatives=[problem.start(name), *problem.other_starts(name)])
 
     def refit_each(effects: Sequence[Effect], around: Sequence[Effect] = ()) -> list[Effect]:
         effects = list(effects)
