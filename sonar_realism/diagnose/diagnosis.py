@@ -168,8 +168,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
-    starts = signature_starts(real_fit, corrected_images(fit_frames, [], config.search.seed, config.normalize),
-                              reference.ranges_m)
+    starts = signature_starts(real_fit, _images(fit_frames, config.normalize), reference.ranges_m)
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
                                real_images=real_hold, sim_images=holdout_images, signature_starts=starts)

@@ -420,13 +420,11 @@ def signature_starts(real_fit: np.ndarray, sim_fit: np.ndarray, ranges_m: np.nda
     """Starts located by an effect's signature on the fit split (real fit frames against the raw sim fit
     frames): a multipath whose ghost offset is the lag where the real frames' per-frame content correlates most
     beyond the sim's, within the effect's offset bounds."""
-    bin_m = float(ranges_m[-1] - ranges_m[0]) / max(len(ranges_m) - 1, 1)
-    if bin_m <= 0:
-        return {}
-    low_m, high_m = Multipath.PARAM_BOUNDS["ghost_offset_m"]
+    low, high = (ghost_lag_bins(m, ranges_m) for m in Multipath.PARAM_BOUNDS["ghost_offset_m"])
     lag = ghost_lag_peak(range_lag_correlation(real_fit), range_lag_correlation(sim_fit),
-                         max(GHOST_MIN_LAG, math.ceil(low_m / bin_m)), int(high_m / bin_m))
-    return {Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=lag * bin_m)}
+                         max(GHOST_MIN_LAG, math.ceil(low)), int(high))
+    offset_m = lag / ghost_lag_bins(1.0, ranges_m)
+    return {Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=offset_m)}
 
 
 @dataclass(frozen=True)

@@ -388,8 +388,7 @@ def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real: F
         return top(images), distance(fingerprint(images), real)["total"]
 
     start = calibration.texture.export_knee
-    ladder = [float(k) for k in np.arange(start, EXPORT_KNEE_LOW, -KNEE_STEP)] + [EXPORT_KNEE_LOW]
-    ladder = sorted(set(ladder), reverse=True)
+    ladder = sorted({*np.arange(start, EXPORT_KNEE_LOW, -KNEE_STEP).tolist(), EXPORT_KNEE_LOW}, reverse=True)
     trials = {knee: trial(knee) for knee in ladder}
     best = min(d for _, d in trials.values())
     allowed = [k for k in ladder if trials[k][1] <= best * (1 + KNEE_DISTANCE_SLACK)]
