@@ -1,14 +1,19 @@
 """Refit a cDFCVAE checkpoint's texture layer with this version's rule, keeping its weights.
 
-What training does after cycle 1 (`fit_model_texture`: the decoder is not trained in cycle 2, so this equals a
-retrain's texture), for a checkpoint trained before the rule changed; optionally switching the mean field's
-fine detail (`--detail input`, models/cdfcvae.py), which the speckle is fitted around. Fit on the training
-recordings only, never on held-out ones. `--texture learned` swaps the speckle statistics for the learned texture
-(models/learned_texture.py; its adversarial fit takes about 0.5 s a step on 2 CPU cores):
+What training does after cycle 1 (`fit_model_texture`; a learned texture drawn on simulated frames: after cycle 2;
+the decoder is not trained in cycle 2, so this equals a retrain's texture), for a checkpoint trained before the
+rule changed; optionally switching the mean field's fine detail (`--detail input`, models/cdfcvae.py), which
+the speckle is fitted around. Fit on the training recordings only, never on held-out ones. `--texture learned`
+swaps the speckle statistics for the learned texture (models/learned_texture.py; its adversarial fit takes about
+0.15 s a step on 2 CPU cores), drawn while it is fitted on the decoded means of `--sim` frames (what the
+translator will texture; the shipped default's recipe):
 
     python scripts/refit_texture.py --checkpoint runs/v10/model.safetensors \\
         --real ../shared/data/real/oculus_polar_seabed/dataset --recordings Oculus_20250805_173650 \\
         --detail input --out runs/v10d1/model.safetensors
+    python scripts/refit_texture.py --checkpoint sonar_realism/assets/cdfcvae_default.safetensors \\
+        --real ../shared/data/real/oculus_polar_seabed/dataset --recordings Oculus_20250805_173650 \\
+        --texture learned --sim runs/cdfcvae_default/sim --out runs/learned/model.safetensors
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ def main() -> None:
     parser.add_argument("--recordings", help="comma-separated training recordings (default: every one in --real)")
     parser.add_argument("--detail", choices=["none", "input"], help="the mean field's fine detail (default: as is)")
     parser.add_argument("--texture", choices=["speckle", "learned"], help="the texture layer (default: as is)")
+    parser.add_argument("--sim", help="simulated frames the learned texture is drawn on while it is fitted "
+                                      "(default: the real frames' own decoded means)")
     parser.add_argument("--steps", type=int, help="the learned texture's fit steps (default: TextureFitConfig's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", required=True, help="where to write the refitted checkpoint")
@@ -47,7 +54,8 @@ def main() -> None:
     schedule = TextureFitConfig() if args.steps is None else TextureFitConfig(steps=args.steps)
     recordings = {name.strip() for name in args.recordings.split(",") if name.strip()} if args.recordings else None
     fit_model_texture(model, texture_frames(args.real, recordings), info.get("normalisation", "frame_max"),
-                      torch.device("cpu"), args.seed, schedule, progress=True)
+                      torch.device("cpu"), args.seed, schedule, progress=True,
+                      sim_frames=texture_frames(args.sim) if args.sim else None)
     extra = {key: value for key, value in info.items() if key not in ("format", "version", "model")}
     print(f"wrote {save_checkpoint(model, args.out, {**extra, 'texture_refit_from': Path(args.checkpoint).name})}")
 

@@ -2,8 +2,8 @@
 # The calibrate -> simulate -> train workflow for one sensor, on a 2-core CPU in under 2 hours:
 #   1. calibrate the simulator to the sensor's fit recording(s) (never the held-out ones),
 #   2. render 400 randomised frames of that sensor,
-#   3. train the default configuration (scripts/cdfcvae_default.json): cycle 1 on the real frames, the speckle
-#      fit, cycle 2 on the calibrated simulator's frames,
+#   3. train the default configuration (scripts/cdfcvae_default.json): cycle 1 on the real frames, cycle 2 on the
+#      calibrated simulator's frames, then the learned texture drawn on those frames against the real ones,
 # then ship the checkpoint as sonar_realism/assets/cdfcvae_CHECKPOINT.* and the calibration as
 # sonar_realism/assets/SENSOR_calibration.json (so `simulate --calibration SENSOR` finds it).
 #

@@ -11,7 +11,7 @@ from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint
 from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
 from sonar_realism.models.train import TrainConfig
 
-QUICK = TextureFitConfig(steps=60, crop=32, batch=4)
+QUICK = TextureFitConfig(steps=60, crop=32, batch=4, generator_lr=1e-3)  # a fast rate: 60 steps are enough
 
 
 def _sensor_like_frames(count: int, seed: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -48,6 +48,27 @@ def test_fit_brings_the_samples_log_ratio_distribution_towards_the_frames():
     error_after = np.abs(_log_ratio_quantiles(list(after), means[:3]) - target).mean()
     assert error_after < 0.5 * error_before
     assert record.steps == QUICK.steps and np.isfinite(record.critic_loss) and record.marginal_loss >= 0
+
+
+def test_an_unpaired_fit_textures_other_mean_fields_like_the_frames():
+    """Drawn on mean fields that are not the frames' own (the ramp reversed, as a simulator's scene differs from
+    the recording's), the fit still brings the ratio around them towards the frames' ratio around theirs."""
+    images, means = _sensor_like_frames(6)
+    draw_on = [mean[::-1].copy() for mean in means]
+    torch.manual_seed(0)
+    texture = LearnedTexture()
+    texture.fitted.fill_(1.0)
+    before = texture.sample(np.stack(draw_on[:3]), torch.Generator().manual_seed(0))
+    torch.manual_seed(0)
+    texture = LearnedTexture()
+    texture.fit(images, means, seed=0, schedule=QUICK, draw_on=draw_on)
+    after = texture.sample(np.stack(draw_on[:3]), torch.Generator().manual_seed(0))
+    target = _log_ratio_quantiles(images, means)
+    error_before = np.abs(_log_ratio_quantiles(list(before), draw_on[:3]) - target).mean()
+    error_after = np.abs(_log_ratio_quantiles(list(after), draw_on[:3]) - target).mean()
+    assert error_after < 0.5 * error_before
+    with pytest.raises(ConfigError, match="to draw on"):
+        texture.fit(images, means, schedule=QUICK, draw_on=[np.ones((16, 64))])
 
 
 def test_samples_are_max_scaled_8_bit_differ_between_draws_and_repeat_with_a_seed():

@@ -264,3 +264,13 @@ def test_relief_match_keeps_no_more_roughness_than_the_recordings_dark_seabed_al
     matched = _match_relief(calibration, calibration.effect_chain(), look, real, 8, 0)
     assert matched.roughness_m <= most and (matched.roughness_m == 0.01) == (most == 0.01)
     assert dataclasses.replace(matched, roughness_m=look.roughness_m) == look  # nothing else moves
+
+
+def test_both_shipped_calibrations_load_by_name_and_simulate(tmp_path) -> None:
+    """`simulate --calibration NAME` finds every calibration scripts/train_sensor.sh ships, the ARIS one too."""
+    for name in ("oculus", "aris"):
+        assert load_calibration(name).grid.modes
+        out = tmp_path / name
+        assert cli_main(["simulate", "--calibration", name, "--n", "2", "--seed", "0", "--out", str(out),
+                         "--quiet"]) == 0
+        assert len(list(read_frames(out))) == 2

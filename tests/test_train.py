@@ -14,6 +14,7 @@ from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.models.cdfcvae import CDFCVAEConfig, PerceptualConfig, load_checkpoint
 from sonar_realism.models.datasets import load_grid_frames, split_by_recording
+from sonar_realism.models.learned_texture import TextureFitConfig
 from sonar_realism.models.train import EarlyStopping, TrainConfig, add_arguments, config_from_args, fit
 
 TINY_MODEL = CDFCVAEConfig(grid=(16, 16), widths=(4, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0)
@@ -182,3 +183,19 @@ def test_cycle1_checkpoint_retargets_to_another_simulator_training_only_the_sim_
     with pytest.raises(ConfigError, match="model configuration"):
         fit(dataclasses.replace(_cfg(epochs1=1, epochs2=1), model=dataclasses.replace(TINY_MODEL, latent_dim=6)),
             real, sim, tmp_path / "other", device="cpu", progress=False, cycle1=first / "cycle1.safetensors")
+
+
+def test_a_learned_texture_is_fitted_after_cycle_2_on_the_simulated_frames_and_after_cycle_1_without_them(tmp_path):
+    real, sim = tmp_path / "real", tmp_path / "sim"
+    write_frames(_frames(6, "rec_a", 0, shape=(64, 64)), real)
+    write_frames(_frames(4, "sim", 2, shape=(64, 64)), sim)
+    model = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1,
+                          dropout=0.0, output_stride=2, upsample="resize_conv", texture="learned")
+    cfg = TrainConfig(model=model, perceptual=TINY_LOSS, batch_size=4, epochs1=1, epochs2=1,
+                      texture_fit=TextureFitConfig(steps=2, crop=32, batch=2))
+    assert fit(cfg, real, sim, tmp_path / "run", device="cpu", progress=False)["finished"]
+    # the sim encoder is not trained at cycle 1's end, so the texture waits for cycle 2 to know what it draws on
+    assert not load_checkpoint(tmp_path / "run" / "cycle1.safetensors")[0].texture.is_fitted
+    assert load_checkpoint(tmp_path / "run" / "model.safetensors")[0].texture.is_fitted
+    assert fit(cfg, real, None, tmp_path / "real_only", device="cpu", progress=False)["finished"]
+    assert load_checkpoint(tmp_path / "real_only" / "cycle1.safetensors")[0].texture.is_fitted

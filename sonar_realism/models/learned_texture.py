@@ -6,13 +6,15 @@ frame's own local mean, and so is the same field with the frame's own full power
 the tell is in the texture's higher-order structure (smooth blobs with soft edges where the copula draws
 isolated dark holes, streaks across beams, an asymmetric response along range; docs/RESULTS.md).
 
-The generator G maps a mean field M (the level a translation or a simulator gives) plus white noise at four
-scales (1, 1/2, 1/4, 1/8 of the grid, bilinearly upsampled: grain and blobs) and the range position to a log
-ratio; the sample is I = M · exp(G), clipped at full scale and exported as the sensor exports (scaled to its
-maximum, 8-bit). It is fully convolutional, so it runs on any grid at the sensor's own resolution.
+The generator G maps a mean field M (the level a translation or a simulator gives) plus white noise at five
+scales (the pixel, and 1/2 to 1/16 of the grid: grain and blobs) and the range position to a log ratio; the
+sample is I = M · exp(G), clipped at full scale and exported as the sensor exports (scaled to its maximum,
+8-bit). It is fully convolutional, so it runs on any grid at the sensor's own resolution.
 
 Fitting (`LearnedTexture.fit`) on real frames scaled to their maximum and a mean field of each (the same pairs
-SpeckleField.fit takes): crops of both; a patch critic with the texture two-sample test's architecture
+SpeckleField.fit takes), and, for a translator, on the mean fields it decodes from simulated frames (unpaired:
+the texture must learn what the simulator's scene lacks, not only what lies around a real frame's own mean):
+crops; a patch critic with the texture two-sample test's architecture
 (evaluate/two_sample.py) sees 32 x 32 patches with their means removed, as the test does; the generator gets
 the critic's non-saturating loss plus the distance between real and generated log-ratio quantiles in each
 level bin of M (so the marginal per level, which the critic sees only through patch shapes, holds from the
@@ -36,9 +38,10 @@ from sonar_realism.evaluate.two_sample import patch_classifier
 from sonar_realism.models.speckle import export_like_sensor
 from sonar_realism.models.speckle_fit import EXPORT_LEVELS, LEVEL_BINS, MEAN_FLOOR, level_edges
 
-GENERATOR_CHANNELS = 24
-DILATIONS = (1, 2, 4, 1, 2, 1)  # receptive field 25 bins, plus the 8-bin noise: a forward-looking sonar's blobs
-NOISE_SCALES = (1, 2, 4, 8)
+FULL_CHANNELS = 12  # at the sensor's resolution: the grain and the 8-bit steps live there
+HALF_CHANNELS = 16  # at half resolution each way: the blobs, fades and streaks; a quarter of the cost a channel
+HALF_DILATIONS = (1, 2, 4, 2)  # with the full-resolution layers, a receptive field of about 70 bins
+NOISE_SCALES = (2, 4, 8, 16)  # white noise on grids this much coarser than the frame, drawn into the half level
 LEVEL_FLOOR = 1.0 / EXPORT_LEVELS  # the generator sees log levels from one 8-bit step up
 CRITIC_PATCH = 32  # the texture two-sample test's patch
 MARGINAL_QUANTILES = 33  # log-ratio quantiles compared per level bin, 0.01 to 0.99
@@ -71,28 +74,46 @@ DEFAULT_FIT = TextureFitConfig()
 
 
 class TextureGenerator(nn.Module):
-    """(log level, range position, multi-scale noise) -> log ratio; residual dilated 3 x 3 convolutions."""
+    """(log level, range position, multi-scale noise) -> log ratio.
+
+    A full-resolution layer sees the level, the range position and pixel noise; a strided layer takes it to
+    half resolution, where coarser noise joins and residual dilated 3 x 3 layers shape the texture's blobs; the
+    result is upsampled, fused with the full-resolution features and refined there. Most of the work runs at
+    a quarter of the pixels: at 512 x 256 it keeps the translator above the sensor's ping rate on two cores
+    (the same depth at full resolution throughout cost about 6 times as much; docs/RESULTS.md)."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.inp = nn.Conv2d(2 + len(NOISE_SCALES), GENERATOR_CHANNELS, 3, padding=1)
-        self.body = nn.ModuleList([nn.Conv2d(GENERATOR_CHANNELS, GENERATOR_CHANNELS, 3, padding=d, dilation=d)
-                                   for d in DILATIONS])
-        self.out = nn.Conv2d(GENERATOR_CHANNELS, 1, 3, padding=1)
+        self.inp = nn.Conv2d(3, FULL_CHANNELS, 3, padding=1)
+        self.down = nn.Conv2d(FULL_CHANNELS, HALF_CHANNELS, 3, stride=2, padding=1)
+        self.mix = nn.Conv2d(HALF_CHANNELS + len(NOISE_SCALES), HALF_CHANNELS, 3, padding=1)
+        self.body = nn.ModuleList([nn.Conv2d(HALF_CHANNELS, HALF_CHANNELS, 3, padding=d, dilation=d)
+                                   for d in HALF_DILATIONS])
+        self.lift = nn.Conv2d(HALF_CHANNELS, FULL_CHANNELS, 1)  # at half resolution, before upsampling
+        self.fuse = nn.Conv2d(FULL_CHANNELS, FULL_CHANNELS, 1)
+        self.refine = nn.Conv2d(FULL_CHANNELS, FULL_CHANNELS, 3, padding=1)
+        self.out = nn.Conv2d(FULL_CHANNELS, 1, 3, padding=1)
 
     def forward(self, mean: torch.Tensor, range_position: torch.Tensor,
                 generator: torch.Generator | None = None) -> torch.Tensor:
         """mean, range_position: [n, 1, H, W] -> log ratio [n, 1, H, W]."""
         n, _, rows, cols = mean.shape
+        pixel_noise = torch.randn((n, 1, rows, cols), generator=generator).to(mean.device)
+        level = torch.log(mean.clamp_min(LEVEL_FLOOR)) / 2 + 1  # about [-1, 1] over the 8-bit levels
+        full = F.leaky_relu(self.inp(torch.cat([level, range_position, pixel_noise], 1)), 0.2, inplace=True)
+        half = F.leaky_relu(self.down(full), 0.2, inplace=True)
+        half_size = half.shape[-2:]
         noises = []
         for factor in NOISE_SCALES:
             noise = torch.randn((n, 1, -(-rows // factor), -(-cols // factor)), generator=generator).to(mean.device)
-            noises.append(noise if factor == 1 else
-                          F.interpolate(noise, size=(rows, cols), mode="bilinear", align_corners=False))
-        level = torch.log(mean.clamp_min(LEVEL_FLOOR)) / 2 + 1  # about [-1, 1] over the 8-bit levels
-        x = F.leaky_relu(self.inp(torch.cat([level, range_position, *noises], 1)), 0.2)
+            noises.append(noise if noise.shape[-2:] == half_size else
+                          F.interpolate(noise, size=half_size, mode="bilinear", align_corners=False))
+        half = F.leaky_relu(self.mix(torch.cat([half, *noises], 1)), 0.2, inplace=True)
         for conv in self.body:
-            x = x + F.leaky_relu(conv(x), 0.2)
+            half = half + F.leaky_relu(conv(half), 0.2, inplace=True)
+        up = F.interpolate(self.lift(half), size=(rows, cols), mode="bilinear", align_corners=False)
+        x = F.leaky_relu(self.fuse(full) + up, 0.2, inplace=True)
+        x = x + F.leaky_relu(self.refine(x), 0.2, inplace=True)
         return self.out(x)
 
 
@@ -116,7 +137,8 @@ class LearnedTexture(nn.Module):
 
     def __init__(self) -> None:
         super().__init__()
-        self.generator = TextureGenerator()
+        # channels-last: at the sensor's resolution a few channels per pixel run about 4 times as fast this way
+        self.generator = TextureGenerator().to(memory_format=torch.channels_last)
         self.register_buffer("fitted", torch.zeros(()))
 
     @property
@@ -150,18 +172,31 @@ class LearnedTexture(nn.Module):
                                   1.0 if knee is None else knee)
 
     def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0,
-            schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> TextureFitRecord:
+            schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False,
+            draw_on: list[np.ndarray] | None = None) -> TextureFitRecord:
         """Train the generator against a patch critic on real frames (scaled to their maximum) and a mean field
-        of each, on the same grid at the sensor's resolution."""
-        if not images or len(images) != len(means):
+        of each, on the same grid at the sensor's resolution.
+
+        `draw_on`: the mean fields the texture will be drawn on in use, when they are not the real frames' own
+        (None: `means`), e.g. the translator's decoded means of simulated frames. The generator then learns on
+        those, unpaired: the critic compares its output on them with the real frames, and the marginal and grain
+        terms compare each side's ratio to its own mean field. Fitted around the real frames' own means, the
+        texture learns nothing of the scene it will sit on; on the simulator's, it learns to turn that scene's
+        soft blotches into the sensor's texture (docs/RESULTS.md)."""
+        drawn_on = means if draw_on is None else draw_on
+        if not images or len(images) != len(means) or not drawn_on:
             raise ConfigError(f"learned texture fit: need real frames and one mean field each, got {len(images)} "
-                              f"and {len(means)}")
+                              f"and {len(means)}, and mean fields to draw on (got {len(drawn_on)})")
         schedule.validate()
         crop = schedule.crop
         for index, (image, mean) in enumerate(zip(images, means, strict=True)):
             if image.shape != mean.shape or image.ndim != 2 or min(image.shape) < crop:
                 raise ConfigError(f"learned texture fit: frame {index} has shape {image.shape} and mean "
                                   f"{mean.shape}; need equal 2-D shapes with sides >= {crop}")
+        for index, mean in enumerate(drawn_on):
+            if mean.ndim != 2 or min(mean.shape) < crop:
+                raise ConfigError(f"learned texture fit: mean field {index} to draw on has shape {mean.shape}; "
+                                  f"need 2-D with sides >= {crop}")
         torch.manual_seed(seed)
         rng = np.random.default_rng(seed)
         device = self.fitted.device
@@ -176,7 +211,11 @@ class LearnedTexture(nn.Module):
         start = time.perf_counter()
         self.generator.train()
         for step in range(schedule.steps):
-            real, mean, position = (t.to(device) for t in _crops(images, means, crop, schedule.batch, rng))
+            real, real_mean, real_position = (t.to(device) for t in _crops(images, means, crop, schedule.batch, rng))
+            if draw_on is None:
+                mean, position = real_mean, real_position
+            else:
+                _, mean, position = (t.to(device) for t in _crops(draw_on, draw_on, crop, schedule.batch, rng))
             fake = self.textured(mean, position)
             real_patches = _mean_removed_patches(real)
             both = torch.cat([real_patches, _mean_removed_patches(fake.detach())])
@@ -187,8 +226,8 @@ class LearnedTexture(nn.Module):
             critic_loss.backward()
             critic_opt.step()
             logits = critic(torch.cat([real_patches, _mean_removed_patches(fake)]))[len(real_patches):, 0]
-            marginal = _marginal_loss(real, fake, mean, edges, probabilities)
-            grain_gap = (_lag1(real - mean) - _lag1(fake - mean)).square().sum()
+            marginal = _marginal_loss(real, real_mean, fake, mean, edges, probabilities)
+            grain_gap = (_lag1(real - real_mean) - _lag1(fake - mean)).square().sum()
             loss = F.softplus(-logits).mean() + schedule.marginal_weight * marginal + schedule.grain_weight * grain_gap
             generator_opt.zero_grad()
             loss.backward()
@@ -205,19 +244,20 @@ class LearnedTexture(nn.Module):
                                 marginal_loss=float(np.mean(marginal_losses[-100:])))
 
 
-def _marginal_loss(real: torch.Tensor, fake: torch.Tensor, mean: torch.Tensor, edges: torch.Tensor,
-                   probabilities: torch.Tensor) -> torch.Tensor:
-    """Mean absolute difference of log-ratio quantiles, real against generated, over the level bins of M."""
-    real_log = torch.log((real / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
-    fake_log = torch.log((fake / mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
-    bins = torch.bucketize(mean, edges)
-    total = torch.zeros((), device=mean.device)
+def _marginal_loss(real: torch.Tensor, real_mean: torch.Tensor, fake: torch.Tensor, fake_mean: torch.Tensor,
+                   edges: torch.Tensor, probabilities: torch.Tensor) -> torch.Tensor:
+    """Mean absolute difference of log-ratio quantiles, real around its mean against generated around its own,
+    over the level bins of the mean fields (a bin either side leaves out when it has too few pixels)."""
+    real_log = torch.log((real / real_mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
+    fake_log = torch.log((fake / fake_mean.clamp_min(LEVEL_FLOOR)).clamp_min(LEVEL_FLOOR))
+    real_bins, fake_bins = torch.bucketize(real_mean, edges), torch.bucketize(fake_mean, edges)
+    total = torch.zeros((), device=real.device)
     for level in range(LEVEL_BINS):
-        inside = bins == level
-        if int(inside.sum()) < MARGINAL_MIN_PIXELS:
+        real_inside, fake_inside = real_bins == level, fake_bins == level
+        if int(real_inside.sum()) < MARGINAL_MIN_PIXELS or int(fake_inside.sum()) < MARGINAL_MIN_PIXELS:
             continue
-        total = total + (torch.quantile(real_log[inside], probabilities)
-                         - torch.quantile(fake_log[inside], probabilities)).abs().mean()
+        total = total + (torch.quantile(real_log[real_inside], probabilities)
+                         - torch.quantile(fake_log[fake_inside], probabilities)).abs().mean()
     return total
 
 

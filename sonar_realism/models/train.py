@@ -289,11 +289,13 @@ class Trainer:
                 self.save_state()
         return True
 
-    def finish_cycle1(self, real_dir: str | Path, train_recordings: set[str]) -> None:
-        """Keep cycle 1's best weights, fit the texture the decoder leaves out, and start cycle 2 from them."""
+    def finish_cycle1(self, real_dir: str | Path, train_recordings: set[str], sim_follows: bool) -> None:
+        """Keep cycle 1's best weights, fit the texture the decoder leaves out, and start cycle 2 from them. A
+        learned texture waits for the end of cycle 2 when it follows: it is fitted on the simulated frames'
+        decoded means, which need the trained sim encoder."""
         if self.best:
             self.model.load_state_dict(self.best)
-        if self.model.texture is not None:
+        if self.model.texture is not None and not (sim_follows and isinstance(self.model.texture, LearnedTexture)):
             self.fit_texture(real_dir, train_recordings)
         if self.rank == 0:
             save_checkpoint(self.model, self.out / "cycle1.safetensors", self._checkpoint_info(),
@@ -319,10 +321,11 @@ class Trainer:
         if self.rank == 0:
             self.save_state()
 
-    def fit_texture(self, real_dir: str | Path, train_recordings: set[str]) -> None:
+    def fit_texture(self, real_dir: str | Path, train_recordings: set[str],
+                    sim_frames: list[SonarImage] | None = None) -> None:
         """Fit the texture layer on the training recordings' frames (see `fit_model_texture`)."""
         fit_model_texture(self.model, texture_frames(real_dir, train_recordings), self.cfg.normalisation,
-                          self.device, self.cfg.seed, self.cfg.texture_fit, self.progress)
+                          self.device, self.cfg.seed, self.cfg.texture_fit, self.progress, sim_frames)
 
     # --- persistence
     def _checkpoint_info(self) -> dict[str, Any]:
@@ -376,12 +379,15 @@ class Trainer:
         for key, record in info["early_stopping"].items():
             self.stopping[key] = EarlyStopping(**record)
 
-    def write_outputs(self, real: Data, sim: Data | None) -> dict[str, Any]:
+    def write_outputs(self, real: Data, sim: Data | None, real_dir: str | Path,
+                      sim_dir: str | Path | None) -> dict[str, Any]:
         if self.best:
             self.model.load_state_dict(self.best)
         if self.cfg.cycle2 == "shared_encoder":
             # Translation always encodes with encoder_sim; here the one shared encoder is it.
             self.model.encoder_sim.load_state_dict(self.model.encoder_real.state_dict())
+        if sim_dir is not None and isinstance(self.model.texture, LearnedTexture):
+            self.fit_texture(real_dir, set(real.train.recordings), texture_frames(sim_dir))
         extra = self._checkpoint_info()
         save_checkpoint(self.model, self.out / "model.safetensors", extra, self.cfg.half_precision_checkpoint)
         record = {"cycles": extra["early_stopping"], "real_split": real.split,
@@ -405,7 +411,8 @@ class Trainer:
 
 
 def texture_frames(real_dir: str | Path, recordings: set[str] | None = None) -> list[SonarImage]:
-    """The single-sample frames of `recordings` (None: all) under `real_dir`: what the speckle layer is fitted on."""
+    """The single-sample frames of `recordings` (None: all) under `real_dir`: what the texture layer is fitted on
+    (and, from a simulated set, what a learned texture is drawn on while it is fitted)."""
     frames = [frame for source in recording_sources(Path(real_dir)) for frame in read_frames(source)
               if (recordings is None or recording_of(frame, source.name) in recordings) and frame.intensity.ndim == 2]
     if not frames:
@@ -415,27 +422,39 @@ def texture_frames(real_dir: str | Path, recordings: set[str] | None = None) -> 
 
 
 def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: str, device: torch.device,
-                      seed: int = 0, schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False) -> None:
+                      seed: int = 0, schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False,
+                      sim_frames: list[SonarImage] | None = None) -> None:
     """Fit the model's texture layer on real frames at their own resolution, around one decoded draw of each at
     TEXTURE_FIT_TEMPERATURE (the mean field a translation textures): the texture the decoder cannot express.
     Speckle (models/speckle.py): statistics, grain matched to the frames' (`SpeckleField.match_grain`); learned
-    (models/learned_texture.py): the generator trained against a patch critic for `schedule`. Uses
-    TEXTURE_FIT_FRAMES frames evenly spaced over `frames`."""
+    (models/learned_texture.py): the generator trained against a patch critic for `schedule`, drawn on the
+    decoded means of `sim_frames` when given (what it will texture in translation), else on the real frames'
+    own. Uses TEXTURE_FIT_FRAMES frames evenly spaced over each list."""
     assert model.texture is not None
-    picked = [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
     model.eval()
-    images, means = [], []
     generator = torch.Generator(device=device).manual_seed(seed)
-    with torch.no_grad():
-        for frame in picked:
-            x = torch.from_numpy(to_model_grid(frame, model.cfg.grid, normalisation))[None, None]
-            mean = model.sample(x.to(device), 1, TEXTURE_FIT_TEMPERATURE, generator, domain="real")[0, 0]
-            means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
-            images.append(normalise(frame, "frame_max"))
+
+    def decoded_means(picked: list[SonarImage], domain: Literal["real", "sim"]) -> list[np.ndarray]:
+        means = []
+        with torch.no_grad():
+            for frame in picked:
+                x = torch.from_numpy(to_model_grid(frame, model.cfg.grid, normalisation))[None, None]
+                mean = model.sample(x.to(device), 1, TEXTURE_FIT_TEMPERATURE, generator, domain=domain)[0, 0]
+                means.append(np.clip(from_model_grid(frame, mean.float().cpu().numpy()), 0.0, 1.0))
+        return means
+
+    picked = _evenly_spaced(frames)
+    images = [normalise(frame, "frame_max") for frame in picked]
+    means = decoded_means(picked, "real")
     if isinstance(model.texture, LearnedTexture):
-        model.texture.fit(images, means, seed, schedule, progress)
+        draw_on = None if sim_frames is None else decoded_means(_evenly_spaced(sim_frames), "sim")
+        model.texture.fit(images, means, seed, schedule, progress, draw_on)
     else:
         model.texture.fit(images, means, seed=seed)
+
+
+def _evenly_spaced(frames: list[SonarImage]) -> list[SonarImage]:
+    return [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
 
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,
@@ -466,10 +485,10 @@ def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out:
     if trainer.cycle == 1:
         if not trainer.run_cycle(real, cfg.epochs1, budget):
             return {"finished": False}
-        trainer.finish_cycle1(real_dir, set(real.train.recordings))
+        trainer.finish_cycle1(real_dir, set(real.train.recordings), sim_follows=sim is not None)
     if sim is not None and not trainer.run_cycle(sim, cfg.epochs2, budget):
         return {"finished": False}
-    return {"finished": True, **(trainer.write_outputs(real, sim) if trainer.rank == 0 else {})}
+    return {"finished": True, **(trainer.write_outputs(real, sim, real_dir, sim_dir) if trainer.rank == 0 else {})}
 
 
 # --- helpers -------------------------------------------------------------------------------------------------------

@@ -189,9 +189,11 @@ def save_calibration(calibration: Calibration, path: str | Path) -> None:
     Path(path).write_text(json.dumps(to_dict(calibration), indent=1) + "\n", encoding="utf-8")
 
 
-# Calibrations shipped with the package, by name: `oculus` is the real Oculus M1200d set's fit recording
-# (Oculus_20250805_173650), made by `sonar-realism calibrate --match Oculus_20250805_173650`.
-SHIPPED_CALIBRATIONS = {"oculus": Path(__file__).resolve().parents[1] / "assets" / "oculus_calibration.json"}
+# Calibrations shipped with the package, by name (assets/NAME_calibration.json, as scripts/train_sensor.sh writes
+# them): `oculus` is the real Oculus M1200d set's fit recording (Oculus_20250805_173650), `aris` the ARIS water
+# tank's 30-degree setting (scripts/train_aris.sh).
+SHIPPED_CALIBRATIONS = {path.name.removesuffix("_calibration.json"): path
+                        for path in (Path(__file__).resolve().parents[1] / "assets").glob("*_calibration.json")}
 
 
 def load_calibration(path: str | Path) -> Calibration:

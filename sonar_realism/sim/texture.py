@@ -49,7 +49,7 @@ FIT_FRAMES = 96  # frames the fit uses, evenly spaced over the recording
 REPLACES = ("speckle",)  # the catalogue effects the fitted texture stands in for
 ROW_GAIN_QUANTILES = 33  # of log row gain, at evenly spaced probabilities from 0.5 % to 99.5 %
 ROW_BASE_ROWS = 15  # a row's expected mean: the median of the row means this many rows around it
-DEFAULT_LEARNED_STEPS = 2000  # critic steps of `calibrate --texture learned` (about 15 min on 2 CPU cores)
+DEFAULT_LEARNED_STEPS = 2000  # critic steps of `calibrate --texture learned` (about 5 min on 2 CPU cores)
 
 
 @dataclass(frozen=True)
