@@ -10,6 +10,7 @@
 #   scripts/train_sensor.sh SENSOR CHECKPOINT REAL_DIR [train options...]
 #   env CALIBRATE_ARGS: more `calibrate` options (e.g. "--match RECORDING --limit 200")
 #   env RECORDINGS:     `train --recordings` (the fit recordings' names; default: every recording in REAL_DIR)
+#   env CONFIG:         the training config (default scripts/cdfcvae_default.json)
 #
 # Resumable: run it again after an interruption and training continues from runs/cdfcvae_CHECKPOINT/state.*.
 # Pass --epochs1/--epochs2 to go further on a GPU (the paper trains far longer).
@@ -26,7 +27,7 @@ mkdir -p "$RUN"
 OPTIONS=()
 [ -f "$RUN/state.json" ] && OPTIONS+=(--resume)
 [ -n "${RECORDINGS:-}" ] && OPTIONS+=(--recordings "$RECORDINGS")
-sonar-realism train --real "$REAL" --sim "$RUN/sim" --out "$RUN" --config scripts/cdfcvae_default.json \
+sonar-realism train --real "$REAL" --sim "$RUN/sim" --out "$RUN" --config "${CONFIG:-scripts/cdfcvae_default.json}" \
   --epochs1 30 --epochs2 15 "${OPTIONS[@]}" "$@"
 cp "$RUN/model.safetensors" "sonar_realism/assets/cdfcvae_$CHECKPOINT.safetensors"
 cp "$RUN/model.json" "sonar_realism/assets/cdfcvae_$CHECKPOINT.json"

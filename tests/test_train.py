@@ -199,3 +199,14 @@ def test_a_learned_texture_is_fitted_after_cycle_2_on_the_simulated_frames_and_a
     assert load_checkpoint(tmp_path / "run" / "model.safetensors")[0].texture.is_fitted
     assert fit(cfg, real, None, tmp_path / "real_only", device="cpu", progress=False)["finished"]
     assert load_checkpoint(tmp_path / "real_only" / "cycle1.safetensors")[0].texture.is_fitted
+
+
+def test_the_shipped_training_configs_parse_and_say_their_texture():
+    """The recipes' configs (scripts/train_sensor.sh's CONFIG) are valid TrainConfigs: a typo would only surface an
+    hour into training otherwise."""
+    from pathlib import Path
+
+    scripts = Path(__file__).resolve().parents[1] / "scripts"
+    textures = {path.stem: from_dict(TrainConfig, json.loads(path.read_text()), path.name).model.texture
+                for path in scripts.glob("cdfcvae_*.json")}
+    assert textures == {"cdfcvae_default": "learned", "cdfcvae_speckle": "speckle", "cdfcvae_paper": "none"}
