@@ -80,7 +80,8 @@ class TextureGenerator(nn.Module):
     half resolution, where coarser noise joins and residual dilated 3 x 3 layers shape the texture's blobs; the
     result is upsampled, fused with the full-resolution features and refined there. Most of the work runs at
     a quarter of the pixels: at 512 x 256 it keeps the translator above the sensor's ping rate on two cores
-    (the same depth at full resolution throughout cost about 6 times as much; docs/RESULTS.md)."""
+    (the previous generator, 7 layers of 24 channels at full resolution, cost about 10 times as much;
+    docs/RESULTS.md)."""
 
     def __init__(self) -> None:
         super().__init__()
