@@ -33,7 +33,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import write_frames
 from sonar_realism.sim.calibrated import calibrated_chain, finish, sensor_for, simulate_calibrated
-from sonar_realism.sim.calibration import load_calibration
+from sonar_realism.sim.calibration import SHIPPED_CALIBRATIONS, load_calibration
 from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
 from sonar_realism.sim.scene import SCENES, build_scene
 from sonar_realism.sim.sensor import SENSORS, SensorConfig
@@ -43,8 +43,8 @@ STORAGE_DTYPES = ("float32", "uint16")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--calibration", help="CALIB.json from `sonar-realism calibrate` (or `oculus`, the shipped "
-                                              "calibration of the real Oculus set): frames of that sensor")
+    parser.add_argument("--calibration", help="CALIB.json from `sonar-realism calibrate`, or a shipped one by name "
+                                              f"({', '.join(sorted(SHIPPED_CALIBRATIONS))}): frames of that sensor")
     parser.add_argument("--scene", help=f"scene name ({', '.join(SCENES)}); default: default, or with --calibration a "
                                         "new randomised view per frame")
     parser.add_argument("--effects", help=f"none, all, or a comma list of: {', '.join(PIPELINE_ORDER)} (default: none; "
