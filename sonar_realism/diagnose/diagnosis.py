@@ -131,8 +131,10 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     # the parameter search sees only `fit_frames` sim frames: the ones of the fit split (among as many as are held
     # out) whose statistics' mean is the split's, not the first few, whose chance level a fit would absorb
     candidates = sim_fit_idx[:max(config.fit_frames, config.eval_frames)]
-    candidate_stats = _statistics(_images([sim[i] for i in candidates], config.normalize), stats_cfg, config.workers)
-    fit_frames = [sim[candidates[i]] for i in sorted(representative_subset(candidate_stats, config.fit_frames, scale))]
+    candidate_images = _images([sim[i] for i in candidates], config.normalize)
+    candidate_stats = _statistics(candidate_images, stats_cfg, config.workers)
+    chosen = sorted(representative_subset(candidate_stats, config.fit_frames, scale))
+    fit_frames = [sim[candidates[i]] for i in chosen]
 
     def holdout_images(effects: Sequence[Effect], gain: GainPattern | None = None) -> np.ndarray:
         return corrected_images(eval_frames, effects, config.search.seed + 1, config.normalize, gain)
@@ -168,7 +170,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
-    starts = signature_starts(real_fit, _images(fit_frames, config.normalize), reference.ranges_m)
+    starts = signature_starts(real_fit, candidate_images[chosen], reference.ranges_m)
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
                                real_images=real_hold, sim_images=holdout_images, signature_starts=starts)

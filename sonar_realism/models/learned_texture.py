@@ -26,6 +26,7 @@ to 8 bits is passed straight through, so the critic cannot key on it.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -212,11 +213,11 @@ class LearnedTexture(nn.Module):
         start = time.perf_counter()
         self.generator.train()
         for step in range(schedule.steps):
-            real, real_mean, real_position = (t.to(device) for t in _crops(images, means, crop, schedule.batch, rng))
+            real, real_mean, real_position = (t.to(device) for t in _crops((images, means), crop, schedule.batch, rng))
             if draw_on is None:
                 mean, position = real_mean, real_position
             else:
-                _, mean, position = (t.to(device) for t in _crops(draw_on, draw_on, crop, schedule.batch, rng))
+                mean, position = (t.to(device) for t in _crops((draw_on,), crop, schedule.batch, rng))
             fake = self.textured(mean, position)
             real_patches = _mean_removed_patches(real)
             both = torch.cat([real_patches, _mean_removed_patches(fake.detach())])
@@ -262,22 +263,24 @@ def _marginal_loss(real: torch.Tensor, real_mean: torch.Tensor, fake: torch.Tens
     return total
 
 
-def _crops(images: list[np.ndarray], means: list[np.ndarray], crop: int, batch: int, rng: np.random.Generator
-           ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """`batch` random crops: real [b, 1, crop, crop], its mean field, and their range position."""
-    reals, levels, positions = [], [], []
+def _crops(aligned: Sequence[list[np.ndarray]], crop: int, batch: int, rng: np.random.Generator
+           ) -> list[torch.Tensor]:
+    """`batch` random crops taken at the same places of each list of equally shaped frames ([b, 1, crop, crop]
+    each), then their range position."""
+    picked: list[list[np.ndarray]] = [[] for _ in aligned]
+    positions = []
     for _ in range(batch):
-        k = int(rng.integers(len(images)))
-        rows, cols = images[k].shape
+        k = int(rng.integers(len(aligned[0])))
+        rows, cols = aligned[0][k].shape
         r0, c0 = int(rng.integers(0, rows - crop + 1)), int(rng.integers(0, cols - crop + 1))
-        reals.append(images[k][r0:r0 + crop, c0:c0 + crop])
-        levels.append(means[k][r0:r0 + crop, c0:c0 + crop])
+        for frames, out in zip(aligned, picked, strict=True):
+            out.append(frames[k][r0:r0 + crop, c0:c0 + crop])
         positions.append(range_position(crop, crop, r0, rows)[0, 0])
 
     def stacked(arrays: list) -> torch.Tensor:
         return torch.from_numpy(np.stack([np.asarray(a, np.float32) for a in arrays]))[:, None]
 
-    return stacked(reals), stacked(levels), stacked(positions)
+    return [*(stacked(out) for out in picked), stacked(positions)]
 
 
 def _lag1(residual: torch.Tensor) -> torch.Tensor:

@@ -379,15 +379,18 @@ class Trainer:
         for key, record in info["early_stopping"].items():
             self.stopping[key] = EarlyStopping(**record)
 
-    def write_outputs(self, real: Data, sim: Data | None, real_dir: str | Path,
-                      sim_dir: str | Path | None) -> dict[str, Any]:
+    def finish_training(self, real_dir: str | Path, train_recordings: set[str], sim_dir: str | Path | None) -> None:
+        """Keep the last cycle's best weights and, after cycle 2, fit a learned texture on the simulated frames'
+        decoded means (what it will texture; see `finish_cycle1`)."""
         if self.best:
             self.model.load_state_dict(self.best)
         if self.cfg.cycle2 == "shared_encoder":
             # Translation always encodes with encoder_sim; here the one shared encoder is it.
             self.model.encoder_sim.load_state_dict(self.model.encoder_real.state_dict())
         if sim_dir is not None and isinstance(self.model.texture, LearnedTexture):
-            self.fit_texture(real_dir, set(real.train.recordings), texture_frames(sim_dir))
+            self.fit_texture(real_dir, train_recordings, texture_frames(sim_dir))
+
+    def write_outputs(self, real: Data, sim: Data | None) -> dict[str, Any]:
         extra = self._checkpoint_info()
         save_checkpoint(self.model, self.out / "model.safetensors", extra, self.cfg.half_precision_checkpoint)
         record = {"cycles": extra["early_stopping"], "real_split": real.split,
@@ -488,7 +491,10 @@ def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out:
         trainer.finish_cycle1(real_dir, set(real.train.recordings), sim_follows=sim is not None)
     if sim is not None and not trainer.run_cycle(sim, cfg.epochs2, budget):
         return {"finished": False}
-    return {"finished": True, **(trainer.write_outputs(real, sim, real_dir, sim_dir) if trainer.rank == 0 else {})}
+    if trainer.rank != 0:
+        return {"finished": True}
+    trainer.finish_training(real_dir, set(real.train.recordings), sim_dir)
+    return {"finished": True, **trainer.write_outputs(real, sim)}
 
 
 # --- helpers -------------------------------------------------------------------------------------------------------
