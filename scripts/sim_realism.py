@@ -113,7 +113,7 @@ def main() -> int:
         frames = load_recording(real_aris_dir() / "Images")
         fit_real, held = frames[0::2], frames[1::2]
         held = evenly(held, min(len(held), 120))
-        config = CalibrateConfig(vertical_fov_deg=14.0)
+        config = CalibrateConfig(vertical_fov_deg=14.0, texture="speckle")  # the ARIS recipe (scripts/train_aris.sh)
         source = "ARIS water tank, even frames"
     else:
         fit_real = load_recording(real_oculus_dir(), OCULUS_FIT_RECORDING)

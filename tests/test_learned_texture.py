@@ -7,8 +7,9 @@ import torch
 
 from sonar_realism.config import from_dict
 from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.statistics import _detrend, lag_correlation
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
-from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
+from sonar_realism.models.learned_texture import GRAIN_DETREND, LearnedTexture, TextureFitConfig, _detrended, _lag1
 from sonar_realism.models.train import TrainConfig
 
 QUICK = TextureFitConfig(steps=60, crop=32, batch=4, generator_lr=1e-3)  # a fast rate: 60 steps are enough
@@ -69,6 +70,26 @@ def test_an_unpaired_fit_textures_other_mean_fields_like_the_frames():
     assert error_after < 0.5 * error_before
     with pytest.raises(ConfigError, match="to draw on"):
         texture.fit(images, means, schedule=QUICK, draw_on=[np.ones((16, 64))])
+
+
+def test_the_fits_grain_is_the_grain_statistic_and_ignores_blobs_the_texture_adds():
+    """The grain term takes lag-1 correlations as the evaluation's grain statistic does (each frame less its own
+    box mean), so blobs larger than the box, which a texture drawn on a smooth simulated scene adds, leave it
+    where the fine grain puts it; the residual around the mean field would count them as grain."""
+    rng = np.random.default_rng(0)
+    fine = cv2.GaussianBlur(rng.standard_normal((6, 128, 96)).transpose(1, 2, 0), (0, 0), 1.0).transpose(2, 0, 1)
+    blobs = cv2.GaussianBlur(rng.standard_normal((6, 128, 96)).transpose(1, 2, 0), (0, 0), 12.0).transpose(2, 0, 1)
+    blobs *= fine.std() / blobs.std()
+    frames = (1.0 + 0.2 * fine).astype(np.float32)
+    blobbed = (frames + 0.2 * blobs).astype(np.float32)
+    as_tensor = lambda a: torch.from_numpy(a)[:, None]  # noqa: E731
+    for images in (frames, blobbed):
+        evaluated = [lag_correlation(_detrend(images, GRAIN_DETREND), axis, 1).mean() for axis in (1, 2)]
+        np.testing.assert_allclose(_lag1(_detrended(as_tensor(images))).numpy(), evaluated, atol=0.03)
+    fit_grain = _lag1(_detrended(as_tensor(blobbed))).numpy()
+    np.testing.assert_allclose(fit_grain, _lag1(_detrended(as_tensor(frames))).numpy(), atol=0.05)
+    around_mean_field = _lag1(as_tensor(blobbed) - 1.0).numpy()
+    assert (around_mean_field > fit_grain + 0.1).all()
 
 
 def test_samples_are_max_scaled_8_bit_differ_between_draws_and_repeat_with_a_seed():

@@ -29,6 +29,8 @@ from sonar_realism.sim.calibration import (
     save_calibration,
 )
 from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER
+from sonar_realism.sim.texture import fit_texture
+from tests.repo_script import load_repo_script
 
 HEIGHT_M, TILT_DEG = 1.2, 8.0
 
@@ -200,14 +202,14 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
         cv2.imwrite(str(folder / f"rec_{i:03d}.png"), frame.intensity)
     out = tmp_path / "CALIB.json"
     assert cli_main(["calibrate", "--real", str(folder), "--out", str(out), "--sim-frames", "2", "--rounds", "1",
-                     "--effect-bootstrap", "0"]) == 0
+                     "--effect-bootstrap", "0", "--texture", "speckle"]) == 0
     calibration = load_calibration(out)
     assert calibration.grid.bearing_source.startswith("default") and any("130" in n for n in calibration.notes)
     page = out.with_suffix(".html").read_text()
     assert "data:image/png;base64," in page and "height above seabed" in page
     assert "Texture: the recording&#x27;s speckle, fitted." in page
     assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
-    assert calibration.texture is not None  # the recording's own speckle, by default
+    assert calibration.texture is not None and calibration.learned_texture is None  # the recording's own speckle
     noise = next(p.estimate for p in calibration.fitted if p.name == "noise_amplitude")
     assert noise.low <= noise.value <= noise.high < 0.5  # matched under the texture, its own interval
     no_texture = tmp_path / "plain.json"
@@ -216,10 +218,11 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     assert load_calibration(no_texture).texture is None
     learned = tmp_path / "learned.json"
     assert cli_main(["calibrate", "--real", str(folder), "--out", str(learned), "--sim-frames", "2", "--rounds",
-                     "1", "--effect-bootstrap", "0", "--texture", "learned", "--texture-steps", "2"]) == 0
+                     "1", "--effect-bootstrap", "0", "--texture-steps", "2"]) == 0  # the learned texture by default
     with_generator = load_calibration(learned)
     assert with_generator.texture is not None and with_generator.learned_texture.steps == 2
-    assert "a generator trained on the recording (2 steps" in learned.with_suffix(".html").read_text()
+    page = learned.with_suffix(".html").read_text()
+    assert "a generator trained on the simulated levels against the recording (2 steps" in page
 
 
 def test_a_recording_whose_seabed_fills_the_window_is_calibrated_with_the_mounting_assumed() -> None:
@@ -274,3 +277,24 @@ def test_both_shipped_calibrations_load_by_name_and_simulate(tmp_path) -> None:
         assert cli_main(["simulate", "--calibration", name, "--n", "2", "--seed", "0", "--out", str(out),
                          "--quiet"]) == 0
         assert len(list(read_frames(out))) == 2
+
+
+def test_refit_calibration_texture_adds_a_generator_on_the_calibrations_own_levels(tmp_path: Path, recording) -> None:
+    script = load_repo_script("scripts/refit_calibration_texture.py", "refit_calibration_texture")
+    folder = tmp_path / "pngs"
+    folder.mkdir()
+    for i, frame in enumerate(recording[:MIN_FRAMES]):
+        cv2.imwrite(str(folder / f"rec_{i:03d}.png"), frame.intensity)
+    images = [frame.intensity.astype(np.float32) / 255 for frame in recording[:MIN_FRAMES]]
+    speckled = dataclasses.replace(truth(), texture=fit_texture(images))
+    save_calibration(speckled, tmp_path / "speckled.json")
+    out = tmp_path / "learned.json"
+    assert script.main(["--calibration", str(tmp_path / "speckled.json"), "--real", str(folder), "--steps", "2",
+                        "--out", str(out)]) == 0
+    refit = load_calibration(out)
+    assert refit.learned_texture is not None and refit.learned_texture.steps == 2
+    assert (refit.grid, refit.mounting, refit.seabed) == (speckled.grid, speckled.mounting, speckled.seabed)
+    assert refit.effects["tvg_noise"].keys() == speckled.effects["tvg_noise"].keys()
+    save_calibration(truth(), tmp_path / "plain.json")
+    with pytest.raises(SystemExit, match="no fitted texture"):
+        script.main(["--calibration", str(tmp_path / "plain.json"), "--real", str(folder), "--out", str(out)])

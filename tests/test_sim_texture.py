@@ -15,7 +15,7 @@ from safetensors.torch import save
 from sonar_realism.errors import ConfigError
 from sonar_realism.models.speckle_fit import top_ratio
 from sonar_realism.sim.calibrate import match_export_knee, match_noise_floor, noise_of, sim_images
-from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish
+from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish, texture_levels
 from sonar_realism.sim.calibration import load_calibration, save_calibration
 from sonar_realism.sim.fingerprint import distance, fingerprint
 from sonar_realism.sim.measure import near_zero_fraction
@@ -132,8 +132,25 @@ def test_row_gain_draws_lines_across_the_fan_and_old_files_without_it_still_load
 
 
 @pytest.fixture(scope="module")
-def learned() -> LearnedSensorTexture:
-    return fit_learned_texture(grainy_frames(), seed=0, steps=3)
+def learned(texture) -> LearnedSensorTexture:
+    calibration = dataclasses.replace(truth(), texture=texture)
+    levels = texture_levels(calibration, calibrated_chain(calibration, "all"), 2, seed=0)
+    return fit_learned_texture(grainy_frames(), levels, seed=0, steps=3)
+
+
+def test_texture_levels_are_the_smooth_level_each_simulated_frame_is_textured_on(texture) -> None:
+    calibration = dataclasses.replace(truth(), texture=texture)
+    chain = calibrated_chain(calibration, "all")
+    levels = texture_levels(calibration, chain, 3, seed=4)
+    for index, level in enumerate(levels):
+        clean, _ = calibrated_view(calibration, 4, index)
+        frame = finish(calibration, clean, chain, np.random.default_rng([4, index])).intensity.astype(np.float32)
+        assert level.shape == frame.shape and level.dtype == np.float32 and level.min() >= 0
+        # the textured frame follows its level, and the level itself carries no speckle
+        assert np.corrcoef(local_mean(frame).ravel(), level.ravel())[0, 1] > 0.9
+        smooth = level[1:] - level[:-1]
+        assert np.abs(smooth).mean() < 0.05 * level.mean()
+    assert not np.array_equal(levels[0], levels[1])  # each view its own scene
 
 
 def test_learned_texture_is_drawn_in_place_of_the_speckle_and_round_trips(texture, learned, tmp_path) -> None:

@@ -18,8 +18,9 @@ crops; a patch critic with the texture two-sample test's architecture
 (evaluate/two_sample.py) sees 32 x 32 patches with their means removed, as the test does; the generator gets
 the critic's non-saturating loss plus the distance between real and generated log-ratio quantiles in each
 level bin of M (so the marginal per level, which the critic sees only through patch shapes, holds from the
-start) and between their neighbour correlations around M along range and across beams (the grain: without it
-the critic left the samples' lag-1 correlation along range at 0.15 against the sensor's 0.30). Quantisation
+start) and between their neighbour correlations along range and across beams, each crop less its own local box
+mean as the grain statistic takes it (without this term the critic left the samples' lag-1 correlation along
+range at 0.15 against the sensor's 0.30). Quantisation
 to 8 bits is passed straight through, so the critic cannot key on it.
 """
 
@@ -35,6 +36,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from sonar_realism.errors import ConfigError
+from sonar_realism.evaluate.statistics import StatisticsConfig
 from sonar_realism.evaluate.two_sample import patch_classifier
 from sonar_realism.models.speckle import export_like_sensor
 from sonar_realism.models.speckle_fit import EXPORT_LEVELS, LEVEL_BINS, MEAN_FLOOR, level_edges
@@ -46,6 +48,7 @@ NOISE_SCALES = (2, 4, 8, 16)  # white noise on grids this much coarser than the 
 LEVEL_FLOOR = 1.0 / EXPORT_LEVELS  # the generator sees log levels from one 8-bit step up
 CRITIC_PATCH = 32  # the texture two-sample test's patch
 MARGINAL_QUANTILES = 33  # log-ratio quantiles compared per level bin, 0.01 to 0.99
+GRAIN_DETREND = StatisticsConfig().detrend  # the box the grain statistic removes the scene with
 MARGINAL_MIN_PIXELS = 200  # a level bin with fewer pixels in a batch is left out of the marginal loss
 
 
@@ -181,8 +184,8 @@ class LearnedTexture(nn.Module):
 
         `draw_on`: the mean fields the texture will be drawn on in use, when they are not the real frames' own
         (None: `means`), e.g. the translator's decoded means of simulated frames. The generator then learns on
-        those, unpaired: the critic compares its output on them with the real frames, and the marginal and grain
-        terms compare each side's ratio to its own mean field. Fitted around the real frames' own means, the
+        those, unpaired: the critic compares its output on them with the real frames, the marginal term each
+        side's ratio to its own mean field, the grain term each side's detrended grain. Fitted around the real frames' own means, the
         texture learns nothing of the scene it will sit on; on the simulator's, it learns to turn that scene's
         soft blotches into the sensor's texture (docs/RESULTS.md)."""
         drawn_on = means if draw_on is None else draw_on
@@ -229,7 +232,7 @@ class LearnedTexture(nn.Module):
             critic_opt.step()
             logits = critic(torch.cat([real_patches, _mean_removed_patches(fake)]))[len(real_patches):, 0]
             marginal = _marginal_loss(real, real_mean, fake, mean, edges, probabilities)
-            grain_gap = (_lag1(real - real_mean) - _lag1(fake - mean)).square().sum()
+            grain_gap = (_lag1(_detrended(real)) - _lag1(_detrended(fake))).square().sum()
             loss = F.softplus(-logits).mean() + schedule.marginal_weight * marginal + schedule.grain_weight * grain_gap
             generator_opt.zero_grad()
             loss.backward()
@@ -288,6 +291,16 @@ def _lag1(residual: torch.Tensor) -> torch.Tensor:
     energy = residual.square().sum().clamp_min(1e-12)
     return torch.stack([(residual[:, :, 1:] * residual[:, :, :-1]).sum() / energy,
                         (residual[..., 1:] * residual[..., :-1]).sum() / energy])
+
+
+def _detrended(images: torch.Tensor) -> torch.Tensor:
+    """Each frame less its own GRAIN_DETREND x GRAIN_DETREND box mean, as the grain statistic detrends
+    (evaluate/statistics.py): the generator's residual around the mean field it was given would also count the
+    blobs it adds to a smooth simulated scene as grain, and trade them for a finer grain (along range 0.62 of
+    the sensor's, docs/RESULTS.md)."""
+    pad = GRAIN_DETREND // 2
+    padded = F.pad(images, (pad, pad, pad, pad), mode="reflect")
+    return images - F.avg_pool2d(padded, GRAIN_DETREND, stride=1)
 
 
 def _mean_removed_patches(images: torch.Tensor) -> torch.Tensor:

@@ -26,7 +26,7 @@ from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_n
 from sonar_realism.sim.sensor import SensorConfig
 from sonar_realism.sim.simulate import frame_for
 from sonar_realism.sim.texture import REPLACES as TEXTURE_REPLACES
-from sonar_realism.sim.texture import apply_texture
+from sonar_realism.sim.texture import apply_texture, local_mean
 
 TARGET_KINDS = ("sphere", "cube", "barrel")
 # Spread of one target's size around the calibrated size (log-normal sigma) and of its range (fraction).
@@ -209,23 +209,45 @@ def _finished(calibration: Calibration, clean: SonarImage, chain: Sequence[Effec
               gain: bool) -> SonarImage:
     textured = calibration.texture is not None and any(e.name == "speckle" for e in chain)
     if textured:
-        chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
-    before = [e for e in chain if not isinstance(e, GammaQuantization)]
+        return apply_texture(calibration.texture, _texture_level(calibration, clean, chain, rng, gain), rng,
+                             calibration.learned_texture)
     output = [e for e in chain if isinstance(e, GammaQuantization)]
-    frame = apply_effects(clean, before, rng) if before else clean
-    if gain:
-        frame = frame.replace(intensity=frame.intensity * residual_gain(calibration, frame))
-    if textured:
-        # the texture is drawn on the output level (it was fitted on the export) before 8-bit saturation: the
-        # speckled value saturates, not the mean (a clipped mean would be a flat plateau under uniform speckle)
-        if output:
-            frame = frame.replace(intensity=output[0].level(frame.intensity))
-        return apply_texture(calibration.texture, frame, rng, calibration.learned_texture)
+    frame = _before_output(calibration, clean, chain, rng, gain)
     if output:
         frame = apply_effects(frame, output, rng)
     if calibration.export_rescaled:
         frame = _rescale_to_max(frame)
     return frame
+
+
+def _before_output(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect], rng: np.random.Generator,
+                   gain: bool) -> SonarImage:
+    """The effects before the output mapping, then the residual gain."""
+    before = [e for e in chain if not isinstance(e, GammaQuantization)]
+    frame = apply_effects(clean, before, rng) if before else clean
+    return frame.replace(intensity=frame.intensity * residual_gain(calibration, frame)) if gain else frame
+
+
+def _texture_level(calibration: Calibration, clean: SonarImage, chain: Sequence[Effect], rng: np.random.Generator,
+                   gain: bool = True) -> SonarImage:
+    """The frame a fitted texture is drawn on: the chain without the effects the texture replaces, on the output
+    level (the texture was fitted on the export) before 8-bit saturation, so that the speckled value saturates,
+    not the mean (a clipped mean would be a flat plateau under uniform speckle)."""
+    chain = [e for e in chain if e.name not in TEXTURE_REPLACES]
+    frame = _before_output(calibration, clean, chain, rng, gain)
+    output = [e for e in chain if isinstance(e, GammaQuantization)]
+    return frame.replace(intensity=output[0].level(frame.intensity)) if output else frame
+
+
+def texture_levels(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> list[np.ndarray]:
+    """The local mean levels (`sim/texture.local_mean`, full-scale units) a fitted texture is drawn on in n
+    calibrated views: what a learned texture is fitted on, unpaired against the recording."""
+    levels = []
+    for index in range(n):
+        clean, _ = calibrated_view(calibration, seed, index)
+        frame = _texture_level(calibration, clean, chain, np.random.default_rng([seed, index]))
+        levels.append(local_mean(frame.intensity.astype(np.float32)))
+    return levels
 
 
 def _rescale_to_max(frame: SonarImage) -> SonarImage:

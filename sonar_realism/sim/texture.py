@@ -11,9 +11,10 @@ kernel per level group, matched to the recording's neighbour correlations (`Spec
 effect, on the output level (after the output mapping): the simulated mean level, the sensor's speckle on top,
 exported as the recording was.
 
-With `calibrate --texture learned` a texture generator (models/learned_texture.py) is also trained on the same
-frames around the same local means, and drawn in place of the speckle model (the row gain below stays): its
-weights travel inside CALIB.json.
+With `calibrate --texture learned` a texture generator (models/learned_texture.py) is also trained, on the
+calibrated simulator's own local mean levels against the same real frames (unpaired: it learns what the
+simulated scene lacks as well as the sensor's grain), and drawn in place of the speckle model (the row gain
+below stays): its weights travel inside CALIB.json.
 
 A real sensor also varies its gain from range sample to range sample, the same across every beam of a ping
 (on the Oculus set about 2.7 % rms, with bright lines in its upper tail: several per frame). The fit keeps the
@@ -120,17 +121,18 @@ def _learned_generator(texture: LearnedSensorTexture) -> LearnedTexture:
     return module.eval()
 
 
-def fit_learned_texture(images: list[np.ndarray], seed: int = 0, steps: int = DEFAULT_LEARNED_STEPS,
-                        progress: bool = False) -> LearnedSensorTexture:
-    """Train the texture generator on real frames scaled to their maximum around their local means (the level
-    `apply_texture` draws on), the same frames `fit_texture` uses."""
+def fit_learned_texture(images: list[np.ndarray], draw_on: list[np.ndarray], seed: int = 0,
+                        steps: int = DEFAULT_LEARNED_STEPS, progress: bool = False) -> LearnedSensorTexture:
+    """Train the texture generator on the simulator's local mean levels `draw_on` (full-scale units, what
+    `apply_texture` draws on: `sim/calibrated.texture_levels`) against real frames scaled to their maximum, the
+    same frames `fit_texture` uses, unpaired (models/learned_texture.py)."""
     from safetensors.torch import save
 
     from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
 
     schedule = TextureFitConfig(steps=steps)
     module = LearnedTexture()
-    record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress)
+    record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress, draw_on=draw_on)
     encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
     return LearnedSensorTexture(encoded, record.steps, round(record.critic_loss, 4))
 
