@@ -185,9 +185,9 @@ class LearnedTexture(nn.Module):
         `draw_on`: the mean fields the texture will be drawn on in use, when they are not the real frames' own
         (None: `means`), e.g. the translator's decoded means of simulated frames. The generator then learns on
         those, unpaired: the critic compares its output on them with the real frames, the marginal term each
-        side's ratio to its own mean field, the grain term each side's detrended grain. Fitted around the real frames' own means, the
-        texture learns nothing of the scene it will sit on; on the simulator's, it learns to turn that scene's
-        soft blotches into the sensor's texture (docs/RESULTS.md)."""
+        side's ratio to its own mean field, the grain term each side's detrended grain. Fitted around the real
+        frames' own means, the texture learns nothing of the scene it will sit on; on the simulator's, it learns
+        to turn that scene's soft blotches into the sensor's texture (docs/RESULTS.md)."""
         drawn_on = means if draw_on is None else draw_on
         if not images or len(images) != len(means) or not drawn_on:
             raise ConfigError(f"learned texture fit: need real frames and one mean field each, got {len(images)} "
