@@ -661,7 +661,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     if config.texture == "learned":
         # the generator once more, on the levels it will be drawn on: the noise floor matched under the first one
         # moved them (Oculus: the floor fell by half), and drawn on levels it was not fitted on its texture is
-        # told from the recording's again (texture test 0.97 against 0.79, docs/RESULTS.md)
+        # told from the recording's again (held out: texture test 0.97 before this refit, 0.92 after it;
+        # docs/RESULTS.md)
         say(f"texture: the texture generator again, on the settled levels ({config.learned_steps} steps)")
         calibration = with_learned_texture(calibration, images, config.learned_steps, config.seed)
     m = calibration.mounting
