@@ -148,8 +148,8 @@ def test_texture_levels_are_the_smooth_level_each_simulated_frame_is_textured_on
         assert level.shape == frame.shape and level.dtype == np.float32 and level.min() >= 0
         # the textured frame follows its level, and the level itself carries no speckle
         assert np.corrcoef(local_mean(frame).ravel(), level.ravel())[0, 1] > 0.9
-        smooth = level[1:] - level[:-1]
-        assert np.abs(smooth).mean() < 0.05 * level.mean()
+        step_along_range = level[1:] - level[:-1]
+        assert np.abs(step_along_range).mean() < 0.05 * level.mean()
     assert not np.array_equal(levels[0], levels[1])  # each view its own scene
 
 
