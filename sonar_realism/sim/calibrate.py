@@ -15,12 +15,13 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    targets: how often a long shadow shows, its width (the target's size) and where it starts;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py);
-5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned` also a
-   texture generator trained on the simulated levels against the recording), which simulation draws in place
-   of the catalogue's speckle; the seabed look matched again under it;
+5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
+   default, also a texture generator trained on the simulated levels against the recording), which simulation
+   draws in place of the catalogue's speckle; the seabed look matched again under it;
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
    noise floor (the TVG noise amplitude whose share of black pixels is the recording's) and the residual
-   range/bearing gain; last the export knee (`match_export_knee`);
+   range/bearing gain; then the export knee (`match_export_knee`); last, with `learned`, the generator again on
+   the levels so settled;
 7. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
    short local search from the fit), 5th-95th percentiles.
 """
