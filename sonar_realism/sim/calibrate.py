@@ -795,9 +795,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bootstrap refits for the effect-parameter intervals (default 4; 0: none)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--texture", choices=TEXTURES, default=CalibrateConfig.texture,
-                        help="the simulated texture: a generator trained on the simulated levels against the "
-                             "recording (default; minutes to fit), the recording's own speckle fitted, or the "
-                             "catalogue's speckle (none)")
+                        help="the simulated texture. learned (default): a generator trained on the simulated "
+                             "levels against the recording (about 9 minutes on 2 cores); speckle: the recording's "
+                             "own speckle fitted; none: the catalogue's speckle")
     parser.add_argument("--texture-steps", type=int, default=CalibrateConfig.learned_steps,
                         help=f"training steps of --texture learned (default {DEFAULT_LEARNED_STEPS})")
 
