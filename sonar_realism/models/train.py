@@ -295,7 +295,7 @@ class Trainer:
         decoded means, which need the trained sim encoder."""
         if self.best:
             self.model.load_state_dict(self.best)
-        if self.model.texture is not None and not (sim_follows and isinstance(self.model.texture, LearnedTexture)):
+        if self.model.texture is not None and not self._texture_waits_for_sim(sim_follows):
             self.fit_texture(real_dir, train_recordings)
         if self.rank == 0:
             save_checkpoint(self.model, self.out / "cycle1.safetensors", self._checkpoint_info(),
@@ -320,6 +320,11 @@ class Trainer:
         self.optimizer = self._make_optimizer()
         if self.rank == 0:
             self.save_state()
+
+    def _texture_waits_for_sim(self, with_sim: bool) -> bool:
+        """Whether the texture is fitted after cycle 2 rather than after cycle 1: a learned one, when there is a
+        simulated set to draw it on."""
+        return with_sim and isinstance(self.model.texture, LearnedTexture)
 
     def fit_texture(self, real_dir: str | Path, train_recordings: set[str],
                     sim_frames: list[SonarImage] | None = None) -> None:
@@ -387,7 +392,7 @@ class Trainer:
         if self.cfg.cycle2 == "shared_encoder":
             # Translation always encodes with encoder_sim; here the one shared encoder is it.
             self.model.encoder_sim.load_state_dict(self.model.encoder_real.state_dict())
-        if sim_dir is not None and isinstance(self.model.texture, LearnedTexture):
+        if self._texture_waits_for_sim(sim_dir is not None):
             self.fit_texture(real_dir, train_recordings, texture_frames(sim_dir))
 
     def write_outputs(self, real: Data, sim: Data | None) -> dict[str, Any]:
