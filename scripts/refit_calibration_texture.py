@@ -4,8 +4,9 @@ For a calibration made before the texture generator was fitted unpaired (or with
 it: the generator is trained on the calibrated simulator's local mean levels against the recording
 (`calibrate.with_learned_texture`); under it, the noise floor (the recording's share of black pixels,
 `match_noise_floor`) and the export knee (`match_export_knee`) are matched again; last the generator is trained
-afresh on the levels of that floor, the ones it is drawn on. Every other value stays as it is (a full
-`calibrate` run would refit them all):
+afresh on the levels of that floor, the ones it is drawn on. With `--near-field`, the ring-down is first matched to
+the recording's near-field band (`calibrate.match_near_field`, as `calibrate` does before the floor). Every other
+value stays as it is (a full `calibrate` run would refit them all):
 
     python scripts/refit_calibration_texture.py --calibration sonar_realism/assets/oculus_calibration.json \\
         --real ../shared/data/real/oculus_polar_seabed/dataset --match Oculus_20250805_173650 --out CALIB.json
@@ -27,7 +28,9 @@ from sonar_realism.sim.calibrate import (  # noqa: E402
     CalibrateConfig,
     load_recording,
     match_export_knee,
+    match_near_field,
     match_noise_floor,
+    near_field_profile,
     noise_of,
     with_learned_texture,
 )
@@ -43,14 +46,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, help="at most this many frames (as `calibrate --limit`)")
     parser.add_argument("--steps", type=int, default=CalibrateConfig.learned_steps, help="training steps")
     parser.add_argument("--seed", type=int, default=CalibrateConfig.seed)
+    parser.add_argument("--near-field", action="store_true",
+                        help="match the ring-down to the recording's near-field band first (calibrate's step)")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     calibration = load_calibration(args.calibration)
     if calibration.texture is None:
         raise SystemExit(f"{args.calibration}: no fitted texture (calibrate --texture none), so no learned one")
     images = [per_frame_rescaled(f.intensity) for f in load_recording(args.real, args.match, args.limit)]
-    calibration = with_learned_texture(calibration, images, args.steps, args.seed, progress=True)
     config, target = CalibrateConfig(), fingerprint(images)
+    if args.near_field:
+        chain = match_near_field(calibration, calibration.effect_chain(), near_field_profile(images),
+                                 config.mounting_frames, args.seed)
+        calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
+    calibration = with_learned_texture(calibration, images, args.steps, args.seed, progress=True)
     chain = match_noise_floor(calibration, calibration.effect_chain(), target.near_zero, config.mounting_frames,
                               args.seed)
     calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})

@@ -14,7 +14,15 @@ import pytest
 from sonar_realism.cli import main as cli_main
 from sonar_realism.errors import ConfigError
 from sonar_realism.io import read_frames
-from sonar_realism.sim.calibrate import MIN_FRAMES, CalibrateConfig, calibrate, match_onsets
+from sonar_realism.sim.calibrate import (
+    MIN_FRAMES,
+    CalibrateConfig,
+    calibrate,
+    match_near_field,
+    match_onsets,
+    near_field_profile,
+    sim_images,
+)
 from sonar_realism.sim.calibrated import SeabedLook, make_patch, simulate_calibrated
 from sonar_realism.sim.calibration import (
     CALIBRATION_VERSION,
@@ -28,7 +36,7 @@ from sonar_realism.sim.calibration import (
     load_calibration,
     save_calibration,
 )
-from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER
+from sonar_realism.sim.effects import EFFECTS, PIPELINE_ORDER, RingDown
 from sonar_realism.sim.texture import fit_texture
 from tests.repo_script import load_repo_script
 
@@ -77,6 +85,26 @@ def test_calibrate_recovers_grid_and_mounting_of_a_known_recording(calibrated) -
     # the noise of six frames); both stand well clear of the uncalibrated sim
     assert c.distances["calibrated sim"] <= c.distances["geometry + default effects"] + 0.03
     assert c.distances["calibrated sim"] <= 0.6 * c.distances["uncalibrated sim"]
+
+
+def test_near_field_match_finds_a_band_that_rises_past_the_first_bins() -> None:
+    """A recording whose near-field band peaks some way out (a ring-down under the receiver's rise, as the Oculus
+    fit recording's): the catalogue's ring-down (brightest at the first bin) is far from it, the match is close."""
+    ring = {"amplitude": 0.3, "decay_m": 0.35, "rise_m": 0.2, "beam_ripple": 0.25}
+    recorded = dataclasses.replace(truth(), effects={**truth().effects, "ring_down": ring})
+    real = near_field_profile(sim_images(recorded, recorded.effect_chain(), 6, seed=5))
+    assert 0 < int(np.argmax(real)) < len(real) - 1
+    start = truth()
+
+    def error(chain: list) -> float:
+        return float(np.abs(np.log(near_field_profile(sim_images(start, chain, 6, seed=5)) + 0.005)
+                            - np.log(real + 0.005)).mean())
+
+    matched = match_near_field(start, start.effect_chain(), real, 6, seed=5)
+    found = next(e for e in matched if isinstance(e, RingDown))
+    assert found.rise_m > 0
+    assert error(matched) < 0.1 < error(start.effect_chain())
+    assert [e.name for e in matched] == [e.name for e in start.effect_chain()]
 
 
 def test_onset_match_scales_height_by_the_median_and_heave_and_pitch_by_the_spread() -> None:

@@ -374,6 +374,22 @@ def test_ring_down_touches_only_the_first_rows() -> None:
     assert out[0].mean() > 0.5 and (out[:rows] >= base[:rows]).all()
 
 
+def test_a_ring_down_with_a_rise_is_dark_at_the_first_bin_peaks_past_it_and_is_added_to_its_last_bin() -> None:
+    base = np.zeros((N_RANGES, N_BEAMS), np.float32)
+    frame = make_frame(base)
+    plain = RingDown(amplitude=0.5, decay_m=0.5, beam_ripple=0.0)
+    risen = dataclasses.replace(plain, rise_m=0.3)
+    r = frame.ranges_m - frame.ranges_m[0]
+    np.testing.assert_allclose(plain.band(frame)[:10], 0.5 * np.exp(-r[:10] / 0.5), rtol=1e-5)  # rise 0: as before
+    band = risen.band(frame)
+    peak = int(np.argmax(band))
+    assert band[0] == 0.0 and 0 < peak and band[peak] < 0.5
+    assert r[peak] == pytest.approx(0.3 * math.log(1 + 0.5 / 0.3), abs=0.07)  # d/dr of (1 - e^(-r/rise)) e^(-r/decay)
+    out = risen.apply(base, frame, rng())
+    last = int(np.flatnonzero(band)[-1])
+    assert out[last].min() > 0 and not out[last + 1:].any()  # the dark first bin does not shorten the band
+
+
 def test_interference_adds_range_localised_arcs_across_the_fan() -> None:
     base = np.zeros((N_RANGES, N_BEAMS), np.float32)
     frame = make_frame(base)

@@ -68,6 +68,7 @@ from sonar_realism.sim.effects import (
     EFFECTS,
     PIPELINE_ORDER,
     Effect,
+    RingDown,
     TvgNoise,
     apply_effects,
     calibrated_parameters,
@@ -94,6 +95,14 @@ KNEE_STEP = 0.1
 KNEE_REFINE = 4
 KNEE_DISTANCE_SLACK = 0.05
 # seabed roughness (m) tried by the relief match, largest first: the renderer's default down to a flat seabed
+# The near-field band lives in the first NEAR_FIELD_SHARE of the range window (the Oculus fit recording's peaks at
+# 2 % and fades by 8 %); its mean level there, in NEAR_FIELD_BINS bins, is what `match_near_field` matches.
+NEAR_FIELD_SHARE = 0.12
+NEAR_FIELD_BINS = 24
+NEAR_FIELD_FLOOR = 0.005  # of full scale: the profiles are compared in log level above it
+NEAR_FIELD_DECAYS = (0.02, 0.05, 0.1, 0.2, 0.35, 0.5)  # m: the ring-down's decay, within its PARAM_BOUNDS
+NEAR_FIELD_RISES = (0.0, 0.05, 0.1, 0.2, 0.35)  # m: the receiver's rise (0: the catalogue's ring-down)
+NEAR_FIELD_BISECTIONS = 7
 RELIEF_LADDER = (0.01, 0.007, 0.005, 0.0035, 0.0025, 0.0015, 0.001, 0.0)
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
@@ -357,6 +366,53 @@ def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_ne
         else:
             high = middle
     return with_amplitude((low + high) / 2)
+
+
+def near_field_profile(images: Sequence[np.ndarray]) -> np.ndarray:
+    """Mean level over beams (frames scaled to their maximum) of the first NEAR_FIELD_SHARE of the range window,
+    in NEAR_FIELD_BINS bins of normalised range, averaged over frames."""
+    rows = [image[:max(NEAR_FIELD_BINS, round(NEAR_FIELD_SHARE * image.shape[0]))].mean(axis=1) for image in images]
+    return np.mean([resample_profile(row, NEAR_FIELD_BINS) for row in rows], axis=0)
+
+
+def match_near_field(calibration: Calibration, chain: Sequence[Effect], real_profile: np.ndarray, n: int,
+                     seed: int) -> list[Effect]:
+    """The chain with the ring-down (amplitude, decay and the receiver's rise) whose simulated near-field profile
+    (`near_field_profile`, texture, gain and export included) is closest to the recording's in log level: on a
+    grid of decays and rises, the amplitude that matches the band's mean log level (bisection: the level grows
+    with it), then the pair with the closest shape. The fingerprint fit sees the first rows and coarse range bins
+    only, and with the catalogue's ring-down (bright at the first bin, gone in a few) it put the Oculus sim's band
+    at 0.13 of full scale in the first 1 % of the range, where the recording's peaks at 0.065 at 2 % and fades by
+    8 % (docs/RESULTS.md). Shape and amplitude trade off in a joint search (a short decay made up by a high
+    amplitude), hence the grid."""
+    clean = clean_views(calibration, n, seed)  # the band is added in `finish`: the scenes stay
+    ring = next(e for e in chain if isinstance(e, RingDown))
+    target = np.log(real_profile + NEAR_FIELD_FLOOR)
+
+    def with_ring(**values: float) -> list[Effect]:
+        trial = dataclasses.replace(ring, **{name: float(f"{value:.3g}") for name, value in values.items()})
+        return [trial if isinstance(e, RingDown) else e for e in chain]
+
+    def log_profile(trial: list[Effect]) -> np.ndarray:
+        return np.log(near_field_profile(finished_images(calibration, clean, trial, seed)) + NEAR_FIELD_FLOOR)
+
+    best: tuple[float, list[Effect]] | None = None
+    for decay in NEAR_FIELD_DECAYS:
+        for rise in NEAR_FIELD_RISES:
+            low, high = math.log(1e-3), math.log(RingDown.PARAM_BOUNDS["amplitude"][1])
+            for _ in range(NEAR_FIELD_BISECTIONS):
+                middle = (low + high) / 2
+                if log_profile(with_ring(amplitude=math.exp(middle), decay_m=decay, rise_m=rise)).mean() > \
+                        target.mean():
+                    high = middle
+                else:
+                    low = middle
+            trial = with_ring(amplitude=math.exp((low + high) / 2), decay_m=decay, rise_m=rise)
+            loss = float(np.abs(log_profile(trial) - target).mean())
+            if best is None or loss < best[0]:
+                best = (loss, trial)
+    assert best is not None
+    return best[1]
 
 
 def match_export_knee(calibration: Calibration, chain: Sequence[Effect], real: Fingerprint, real_top: float,
@@ -628,6 +684,12 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         say(f"texture: the recording's speckle fitted (sim/texture.py); seabed under it: contrast "
             f"{look.patch_contrast:.2f}, scale {look.patch_scale_m:.2f} m, width {look.patch_width_deg:.1f} deg, "
             f"dark {look.dark_fraction:.2f}")
+    # the near-field band (ring-down under the receiver's rise) matched on its own profile, before the residual
+    # gain: else the gain's first knot lifts whatever the fitted ring-down leaves there (Oculus: +12 dB)
+    chain = match_near_field(calibration, chain, near_field_profile(images), config.mounting_frames, seed)
+    calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
+    ring = next(e for e in chain if isinstance(e, RingDown))
+    say(f"near field: ring-down amplitude {ring.amplitude:.3g}, decay {ring.decay_m:.3g} m, rise {ring.rise_m:.3g} m")
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
     for _ in range(2):
         sim_highlight = _sim_highlight(calibration, chain, n, seed)

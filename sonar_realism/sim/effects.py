@@ -603,19 +603,25 @@ class RingDown(Effect, order=90):
 
     Adds a full-width band of power amplitude^2 * exp(-2 (r - r_0)/`decay_m`) (amplitude decays with e-folding
     `decay_m` from the first bin r_0), modulated per beam by `beam_ripple` (relative rms, new every ping: the
-    element-to-element spread of the leakage). Beyond the range where the band falls under 1e-4 nothing changes.
+    element-to-element spread of the leakage). With `rise_m` > 0 the receiver's gain recovers from the transmit
+    blanking over `rise_m` (e-folding) while the ring decays: the band's amplitude is multiplied by
+    1 - exp(-(r - r_0)/`rise_m`), so it starts dark, peaks some tens of centimetres out and fades (the Oculus
+    recording's near-field band: `calibrate.match_near_field` fits the rise; the diagnosis keeps the catalogue's
+    rise of 0, so it is not in PARAM_BOUNDS). Beyond the
+    range where the band falls under 1e-4 of `amplitude` nothing changes.
     """
 
     name: ClassVar[str] = "ring_down"
     amplitude: float = 0.139  # calibrated
     decay_m: float = 0.0418  # calibrated
     beam_ripple: float = 0.25
+    rise_m: float = 0.0
     # the decay before the amplitude: a fit sweeps them in this order, and at the calibrated short decay a long
     # real ring-down is matched best by no ring-down at all (amplitude 0), after which no decay changes anything
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
         "decay_m": (0.005, 0.5), "beam_ripple": (0.0, 0.8), "amplitude": (0.0, 1.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
-        "amplitude": (0.0, 10.0), "decay_m": (1e-5, 100.0), "beam_ripple": (0.0, 5.0)}
+        "amplitude": (0.0, 10.0), "decay_m": (1e-5, 100.0), "beam_ripple": (0.0, 5.0), "rise_m": (0.0, 100.0)}
     CALIBRATED: ClassVar[tuple[str, ...]] = ("amplitude", "decay_m")
     LOG_SCALE: ClassVar[frozenset[str]] = frozenset({"decay_m"})
 
@@ -623,14 +629,17 @@ class RingDown(Effect, order=90):
         """Ring-down amplitude per range bin (zero where below 1e-4 of `amplitude`)."""
         r = frame.ranges_m - frame.ranges_m[0]
         band = self.amplitude * np.exp(-r / self.decay_m)
+        if self.rise_m > 0:
+            band = band * -np.expm1(-r / self.rise_m)
         return np.where(band >= 1e-4 * self.amplitude, band, 0.0).astype(np.float32)
 
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
         band = self.band(frame)
-        rows = int(np.count_nonzero(band))
+        lit = np.flatnonzero(band)
         out = np.array(intensity, dtype=np.float32, copy=True)
-        if rows == 0:
+        if lit.size == 0:
             return out
+        rows = int(lit[-1]) + 1  # with a rise the first bins are dark: the band ends at its last lit bin
         planes = _planes(out)
         for plane in planes:
             ripple = np.maximum(1.0 + self.beam_ripple * rng.standard_normal(frame.n_beams), 0.0)
