@@ -326,6 +326,14 @@ def test_refit_calibration_texture_adds_a_generator_on_the_calibrations_own_leve
     assert {k: v for k, v in refit.effects.items() if k != "tvg_noise"} == \
         {k: v for k, v in speckled.effects.items() if k != "tvg_noise"}
     assert refit.texture is not None and refit.texture.level_edges == speckled.texture.level_edges
+    # with --near-field the ring-down is matched to the recording's band first, and nothing else more
+    near = tmp_path / "near.json"
+    assert script.main(["--calibration", str(tmp_path / "speckled.json"), "--real", str(folder), "--steps", "2",
+                        "--near-field", "--out", str(near)]) == 0
+    matched = load_calibration(near)
+    assert matched.effects["ring_down"] != speckled.effects["ring_down"]
+    assert {k: v for k, v in matched.effects.items() if k not in ("tvg_noise", "ring_down")} == \
+        {k: v for k, v in speckled.effects.items() if k not in ("tvg_noise", "ring_down")}
     save_calibration(truth(), tmp_path / "plain.json")
     with pytest.raises(SystemExit, match="no fitted texture"):
         script.main(["--calibration", str(tmp_path / "plain.json"), "--real", str(folder), "--out", str(out)])
