@@ -102,7 +102,8 @@ NEAR_FIELD_BINS = 24
 NEAR_FIELD_FLOOR = 0.005  # of full scale: the profiles are compared in log level above it
 NEAR_FIELD_DECAYS = (0.02, 0.05, 0.1, 0.2, 0.35, 0.5)  # m: the ring-down's decay, within its PARAM_BOUNDS
 NEAR_FIELD_RISES = (0.0, 0.05, 0.1, 0.2, 0.35)  # m: the receiver's rise (0: the catalogue's ring-down)
-NEAR_FIELD_BISECTIONS = 7
+NEAR_FIELD_SECANT_STEPS = 2
+NEAR_FIELD_FRAMES = 12  # views the band is matched on (a mean over beams and frames: few suffice)
 RELIEF_LADDER = (0.01, 0.007, 0.005, 0.0035, 0.0025, 0.0015, 0.001, 0.0)
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
@@ -379,13 +380,13 @@ def match_near_field(calibration: Calibration, chain: Sequence[Effect], real_pro
                      seed: int) -> list[Effect]:
     """The chain with the ring-down (amplitude, decay and the receiver's rise) whose simulated near-field profile
     (`near_field_profile`, texture, gain and export included) is closest to the recording's in log level: on a
-    grid of decays and rises, the amplitude that matches the band's mean log level (bisection: the level grows
+    grid of decays and rises, the amplitude that matches the band's mean log level (secant steps: the level grows
     with it), then the pair with the closest shape. The fingerprint fit sees the first rows and coarse range bins
     only, and with the catalogue's ring-down (bright at the first bin, gone in a few) it put the Oculus sim's band
     at 0.13 of full scale in the first 1 % of the range, where the recording's peaks at 0.065 at 2 % and fades by
     8 % (docs/RESULTS.md). Shape and amplitude trade off in a joint search (a short decay made up by a high
     amplitude), hence the grid."""
-    clean = clean_views(calibration, n, seed)  # the band is added in `finish`: the scenes stay
+    clean = clean_views(calibration, min(n, NEAR_FIELD_FRAMES), seed)  # the band is added in `finish`
     ring = next(e for e in chain if isinstance(e, RingDown))
     target = np.log(real_profile + NEAR_FIELD_FLOOR)
 
@@ -396,18 +397,23 @@ def match_near_field(calibration: Calibration, chain: Sequence[Effect], real_pro
     def log_profile(trial: list[Effect]) -> np.ndarray:
         return np.log(near_field_profile(finished_images(calibration, clean, trial, seed)) + NEAR_FIELD_FLOOR)
 
+    def excess(log_amplitude: float, decay: float, rise: float) -> float:
+        """The band's mean log level over the recording's at this ring-down."""
+        trial = with_ring(amplitude=math.exp(log_amplitude), decay_m=decay, rise_m=rise)
+        return float(log_profile(trial).mean() - target.mean())
+
     best: tuple[float, list[Effect]] | None = None
+    low, high = math.log(1e-3), math.log(RingDown.PARAM_BOUNDS["amplitude"][1])
     for decay in NEAR_FIELD_DECAYS:
         for rise in NEAR_FIELD_RISES:
-            low, high = math.log(1e-3), math.log(RingDown.PARAM_BOUNDS["amplitude"][1])
-            for _ in range(NEAR_FIELD_BISECTIONS):
-                middle = (low + high) / 2
-                if log_profile(with_ring(amplitude=math.exp(middle), decay_m=decay, rise_m=rise)).mean() > \
-                        target.mean():
-                    high = middle
-                else:
-                    low = middle
-            trial = with_ring(amplitude=math.exp((low + high) / 2), decay_m=decay, rise_m=rise)
+            # the band's mean log level against log amplitude is smooth and rising: secant steps from two guesses
+            points = [(x, excess(x, decay, rise)) for x in (math.log(0.01), math.log(0.1))]
+            for _ in range(NEAR_FIELD_SECANT_STEPS):
+                (x0, f0), (x1, f1) = points[-2:]
+                x = x1 if f1 == f0 else min(max(x1 - f1 * (x1 - x0) / (f1 - f0), low), high)
+                points.append((x, excess(x, decay, rise)))
+            x = min(points, key=lambda point: abs(point[1]))[0]
+            trial = with_ring(amplitude=math.exp(x), decay_m=decay, rise_m=rise)
             loss = float(np.abs(log_profile(trial) - target).mean())
             if best is None or loss < best[0]:
                 best = (loss, trial)
