@@ -236,6 +236,8 @@ def test_calibrate_cli_writes_calibration_and_report(tmp_path: Path, recording) 
     page = out.with_suffix(".html").read_text()
     assert "data:image/png;base64," in page and "height above seabed" in page
     assert "Texture: the recording&#x27;s speckle, fitted." in page
+    ring = calibration.effects["ring_down"]
+    assert f"receiver rise {ring['rise_m']:.3g} m" in page  # the near-field band, matched and said
     assert dataclasses.asdict(calibration)["frames"] == MIN_FRAMES
     assert calibration.texture is not None and calibration.learned_texture is None  # the recording's own speckle
     noise = next(p.estimate for p in calibration.fitted if p.name == "noise_amplitude")

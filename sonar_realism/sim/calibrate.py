@@ -17,7 +17,8 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    the calibrated setting (fingerprint in sim/fingerprint.py);
 5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
    default, also a texture generator trained on the simulated levels against the recording), which simulation
-   draws in place of the catalogue's speckle; the seabed look matched again under it;
+   draws in place of the catalogue's speckle; the seabed look matched again under it; then the near-field band
+   (`match_near_field`: the ring-down's amplitude, decay and the receiver's rise on the band's own profile);
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
    noise floor (the TVG noise amplitude whose share of black pixels is the recording's) and the residual
    range/bearing gain; then the export knee (`match_export_knee`); last, with `learned`, the generator again on
@@ -94,7 +95,6 @@ FLOOR_RANGE = 16.0
 KNEE_STEP = 0.1
 KNEE_REFINE = 4
 KNEE_DISTANCE_SLACK = 0.05
-# seabed roughness (m) tried by the relief match, largest first: the renderer's default down to a flat seabed
 # The near-field band lives in the first NEAR_FIELD_SHARE of the range window (the Oculus fit recording's peaks at
 # 2 % and fades by 8 %); its mean level there, in NEAR_FIELD_BINS bins, is what `match_near_field` matches.
 NEAR_FIELD_SHARE = 0.12
@@ -104,6 +104,7 @@ NEAR_FIELD_DECAYS = (0.02, 0.05, 0.1, 0.2, 0.35, 0.5)  # m: the ring-down's deca
 NEAR_FIELD_RISES = (0.0, 0.05, 0.1, 0.2, 0.35)  # m: the receiver's rise (0: the catalogue's ring-down)
 NEAR_FIELD_SECANT_STEPS = 2
 NEAR_FIELD_FRAMES = 12  # views the band is matched on (a mean over beams and frames: few suffice)
+# seabed roughness (m) tried by the relief match, largest first: the renderer's default down to a flat seabed
 RELIEF_LADDER = (0.01, 0.007, 0.005, 0.0035, 0.0025, 0.0015, 0.001, 0.0)
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).

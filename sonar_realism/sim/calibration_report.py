@@ -125,6 +125,9 @@ def write_report(result: CalibrationResult, path: str | Path) -> Path:
     notes = "".join(f"<li>{html.escape(n)}</li>" for n in c.notes)
     gains = (f"range {', '.join(f'{v:+.1f}' for v in c.range_gain_db)} dB; "
              f"bearing {', '.join(f'{v:+.1f}' for v in c.bearing_gain_db)} dB")
+    ring = c.effects["ring_down"]
+    near_field = (f"ring-down amplitude {ring['amplitude']:.3g}, decay {ring['decay_m']:.3g} m, receiver rise "
+                  f"{ring.get('rise_m', 0.0):.3g} m (matched on the recording's band profile; no interval)")
     fans = fans_figure(result.real_images, result.examples, c.grid.modes[0].fov_deg)
     texture = _texture_said(c)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>Calibration: {html.escape(c.source)}</title>
@@ -139,6 +142,7 @@ the frames.</p>
 <p>Texture: {html.escape(texture)}.</p>
 <h2>Fitted values</h2><table><tr><th>quantity</th><th>value</th><th>interval</th></tr>{''.join(rows)}</table>
 <p>Residual gain: {gains}</p>
+<p>Near-field band: {near_field}</p>
 <h2>Grid ({html.escape(c.grid.bearing_source)}; ranges: {html.escape(c.grid.range_source)})</h2>
 <table><tr><th>beams</th><th>range bins</th><th>window</th><th>fan (deg)</th><th>share</th></tr>{grids}</table>
 <h2>Assumed, not measured</h2><ul>{notes}</ul></body></html>

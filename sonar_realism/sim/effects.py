@@ -607,8 +607,8 @@ class RingDown(Effect, order=90):
     blanking over `rise_m` (e-folding) while the ring decays: the band's amplitude is multiplied by
     1 - exp(-(r - r_0)/`rise_m`), so it starts dark, peaks some tens of centimetres out and fades (the Oculus
     recording's near-field band: `calibrate.match_near_field` fits the rise; the diagnosis keeps the catalogue's
-    rise of 0, so it is not in PARAM_BOUNDS). Beyond the
-    range where the band falls under 1e-4 of `amplitude` nothing changes.
+    rise of 0, so it is not in PARAM_BOUNDS). Beyond the range where the band falls under 1e-4 of `amplitude`
+    nothing changes.
     """
 
     name: ClassVar[str] = "ring_down"
