@@ -26,15 +26,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sonar_realism.models.speckle_fit import top_ratio  # noqa: E402
 from sonar_realism.sim.calibrate import (  # noqa: E402
     CalibrateConfig,
+    effect_in,
     load_recording,
     match_export_knee,
     match_near_field,
     match_noise_floor,
     near_field_profile,
-    noise_of,
     with_learned_texture,
 )
 from sonar_realism.sim.calibration import load_calibration, save_calibration  # noqa: E402
+from sonar_realism.sim.effects import TvgNoise  # noqa: E402
 from sonar_realism.sim.fingerprint import fingerprint, per_frame_rescaled  # noqa: E402
 
 
@@ -72,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     assert calibration.texture is not None
     print(f"learned texture: {calibration.learned_texture.steps} steps, critic loss "
           f"{calibration.learned_texture.critic_loss}; tvg_noise.noise_amplitude "
-          f"{noise_of(chain).noise_amplitude:.4f}, "
+          f"{effect_in(chain, TvgNoise).noise_amplitude:.4f}, "
           f"export knee {calibration.texture.export_knee}; wrote {args.out}")
     return 0
 

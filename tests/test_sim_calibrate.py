@@ -18,6 +18,7 @@ from sonar_realism.sim.calibrate import (
     MIN_FRAMES,
     CalibrateConfig,
     calibrate,
+    effect_in,
     match_near_field,
     match_onsets,
     near_field_profile,
@@ -101,7 +102,7 @@ def test_near_field_match_finds_a_band_that_rises_past_the_first_bins() -> None:
                             - np.log(real + 0.005)).mean())
 
     matched = match_near_field(start, start.effect_chain(), real, 6, seed=5)
-    found = next(e for e in matched if isinstance(e, RingDown))
+    found = effect_in(matched, RingDown)
     assert found.rise_m > 0
     assert error(matched) < 0.1 < error(start.effect_chain())
     assert [e.name for e in matched] == [e.name for e in start.effect_chain()]

@@ -14,9 +14,10 @@ from safetensors.torch import save
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.models.speckle_fit import top_ratio
-from sonar_realism.sim.calibrate import match_export_knee, match_noise_floor, noise_of, sim_images
+from sonar_realism.sim.calibrate import effect_in, match_export_knee, match_noise_floor, sim_images
 from sonar_realism.sim.calibrated import calibrated_chain, calibrated_view, finish, texture_levels
 from sonar_realism.sim.calibration import load_calibration, save_calibration
+from sonar_realism.sim.effects import TvgNoise
 from sonar_realism.sim.fingerprint import distance, fingerprint
 from sonar_realism.sim.measure import near_zero_fraction
 from sonar_realism.sim.texture import LearnedSensorTexture, fit_learned_texture, fit_row_gain, fit_texture, local_mean
@@ -201,7 +202,7 @@ def test_noise_floor_under_the_texture_draws_the_recordings_share_of_black_pixel
     assert black_share(chain) < 0.042  # the default floor (0.12) draws ~4 % here; none at all ~5 %
     for wanted in (0.03, 0.047):
         matched = match_noise_floor(calibration, chain, wanted, 6, 0)
-        amplitudes.append(noise_of(matched).noise_amplitude)
+        amplitudes.append(effect_in(matched, TvgNoise).noise_amplitude)
         assert black_share(matched) == pytest.approx(wanted, abs=0.003)
     assert amplitudes[0] > amplitudes[1]  # more black pixels wanted: a lower floor
     # a recording without black water does not show its floor: the fitted amplitude stays

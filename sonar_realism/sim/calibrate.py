@@ -37,7 +37,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -79,6 +79,8 @@ from sonar_realism.sim.measure import SeabedStats
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
 from sonar_realism.sim.texture import DEFAULT_LEARNED_STEPS, FIT_FRAMES, fit_learned_texture, fit_texture
+
+EffectT = TypeVar("EffectT", bound=Effect)
 
 MIN_FRAMES = 8
 MAX_GRID_MODES = 24
@@ -336,8 +338,9 @@ def resolved_width(stats: SeabedStats) -> bool:
     return stats.width_beams >= 2 * measure.LOCAL_BOX
 
 
-def noise_of(chain: Sequence[Effect]) -> TvgNoise:
-    return next(e for e in chain if isinstance(e, TvgNoise))
+def effect_in(chain: Sequence[Effect], kind: type[EffectT]) -> EffectT:
+    """The chain's effect of this class (a calibrated chain holds every catalogue effect once)."""
+    return next(e for e in chain if isinstance(e, kind))
 
 
 def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_near_zero: float, n: int, seed: int,
@@ -351,7 +354,7 @@ def match_noise_floor(calibration: Calibration, chain: Sequence[Effect], real_ne
     is returned as it is. The search stays within a factor FLOOR_RANGE of the fitted amplitude."""
     if real_near_zero < MIN_BLACK_SHARE:
         return list(chain)
-    fitted = max(noise_of(chain).noise_amplitude, 1e-3)
+    fitted = max(effect_in(chain, TvgNoise).noise_amplitude, 1e-3)
     low, high = TvgNoise.PARAM_BOUNDS["noise_amplitude"]
     low, high = math.log(max(low, 1e-3, fitted / FLOOR_RANGE)), math.log(min(high, fitted * FLOOR_RANGE))
     clean = clean_views(calibration, n, seed)  # the noise is drawn in `finish`: the scenes stay
@@ -388,34 +391,35 @@ def match_near_field(calibration: Calibration, chain: Sequence[Effect], real_pro
     8 % (docs/RESULTS.md). Shape and amplitude trade off in a joint search (a short decay made up by a high
     amplitude), hence the grid."""
     clean = clean_views(calibration, min(n, NEAR_FIELD_FRAMES), seed)  # the band is added in `finish`
-    ring = next(e for e in chain if isinstance(e, RingDown))
+    ring = effect_in(chain, RingDown)
     target = np.log(real_profile + NEAR_FIELD_FLOOR)
 
     def with_ring(**values: float) -> list[Effect]:
         trial = dataclasses.replace(ring, **{name: float(f"{value:.3g}") for name, value in values.items()})
         return [trial if isinstance(e, RingDown) else e for e in chain]
 
-    def log_profile(trial: list[Effect]) -> np.ndarray:
-        return np.log(near_field_profile(finished_images(calibration, clean, trial, seed)) + NEAR_FIELD_FLOOR)
-
-    def excess(log_amplitude: float, decay: float, rise: float) -> float:
-        """The band's mean log level over the recording's at this ring-down."""
+    def tried(log_amplitude: float, decay: float, rise: float) -> tuple[float, np.ndarray, list[Effect]]:
+        """Log amplitude, the simulated band's log profile and the chain, at this ring-down."""
         trial = with_ring(amplitude=math.exp(log_amplitude), decay_m=decay, rise_m=rise)
-        return float(log_profile(trial).mean() - target.mean())
+        profile = near_field_profile(finished_images(calibration, clean, trial, seed))
+        return log_amplitude, np.log(profile + NEAR_FIELD_FLOOR), trial
+
+    def excess(point: tuple[float, np.ndarray, list[Effect]]) -> float:
+        """The band's mean log level over the recording's."""
+        return float(point[1].mean() - target.mean())
 
     best: tuple[float, list[Effect]] | None = None
     low, high = math.log(1e-3), math.log(RingDown.PARAM_BOUNDS["amplitude"][1])
     for decay in NEAR_FIELD_DECAYS:
         for rise in NEAR_FIELD_RISES:
             # the band's mean log level against log amplitude is smooth and rising: secant steps from two guesses
-            points = [(x, excess(x, decay, rise)) for x in (math.log(0.01), math.log(0.1))]
+            points = [tried(x, decay, rise) for x in (math.log(0.01), math.log(0.1))]
             for _ in range(NEAR_FIELD_SECANT_STEPS):
-                (x0, f0), (x1, f1) = points[-2:]
+                (x0, f0), (x1, f1) = [(p[0], excess(p)) for p in points[-2:]]
                 x = x1 if f1 == f0 else min(max(x1 - f1 * (x1 - x0) / (f1 - f0), low), high)
-                points.append((x, excess(x, decay, rise)))
-            x = min(points, key=lambda point: abs(point[1]))[0]
-            trial = with_ring(amplitude=math.exp(x), decay_m=decay, rise_m=rise)
-            loss = float(np.abs(log_profile(trial) - target).mean())
+                points.append(tried(x, decay, rise))
+            _, log_profile, trial = min(points, key=lambda point: abs(excess(point)))
+            loss = float(np.abs(log_profile - target).mean())
             if best is None or loss < best[0]:
                 best = (loss, trial)
     assert best is not None
@@ -479,9 +483,9 @@ def _with_noise_floor_interval(fitted: tuple[FittedParameter, ...], calibration:
     the other intervals run under the catalogue's speckle, where the amplitude means another floor)."""
     shares = _estimate(np.array([measure.near_zero_fraction(i) for i in images]), np.mean, rng, config.bootstrap)
     # more black pixels wanted: less noise, so the high share gives the low amplitude
-    low, high = (noise_of(match_noise_floor(calibration, chain, share, config.mounting_frames, config.seed))
+    low, high = (effect_in(match_noise_floor(calibration, chain, share, config.mounting_frames, config.seed), TvgNoise)
                  .noise_amplitude for share in (shares.high, shares.low))
-    value = noise_of(chain).noise_amplitude
+    value = effect_in(chain, TvgNoise).noise_amplitude
     interval = Estimate(value, min(low, value), max(high, value))
     return tuple(dataclasses.replace(p, estimate=interval) if (p.effect, p.name) == ("tvg_noise", "noise_amplitude")
                  else p for p in fitted)
@@ -695,7 +699,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     # gain: else the gain's first knot lifts whatever the fitted ring-down leaves there (Oculus: +12 dB)
     chain = match_near_field(calibration, chain, near_field_profile(images), config.mounting_frames, seed)
     calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
-    ring = next(e for e in chain if isinstance(e, RingDown))
+    ring = effect_in(chain, RingDown)
     say(f"near field: ring-down amplitude {ring.amplitude:.3g}, decay {ring.decay_m:.3g} m, rise {ring.rise_m:.3g} m")
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
     for _ in range(2):
@@ -736,8 +740,9 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         say(f"texture: the texture generator again, on the settled levels ({config.learned_steps} steps)")
         calibration = with_learned_texture(calibration, images, config.learned_steps, config.seed)
     m = calibration.mounting
+    noise = effect_in(chain, TvgNoise).noise_amplitude
     say(f"mounting under the final chain: height {m.height_m.value:.2f} m, heave sd {m.heave_sd_m.value:.3f} m, "
-        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {noise_of(chain).noise_amplitude:.4f}"
+        f"pitch sd {m.pitch_sd_deg.value:.2f} deg; tvg_noise.noise_amplitude {noise:.4f}"
         + (f"; export knee {calibration.texture.export_knee:.3f}" if calibration.texture is not None else ""))
 
     # intervals of the effect parameters: refits on bootstrap resamples of the recording, each against fresh sim frames
