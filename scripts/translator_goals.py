@@ -159,7 +159,7 @@ def main() -> int:
         for mask, frame, output, source in zip(masks, inputs, first_grid, input_grid, strict=True):
             if mask is not None and mask.any():
                 on_grid = mask_to_grid(mask, frame, GRID)
-                ious.append(mask_iou(on_grid, output))
+                ious.append(mask_iou(on_grid, output, source))
                 input_ious.append(mask_iou(on_grid, source))
         row["mask_iou_ratio"] = float(np.nanmean(ious) / np.nanmean(input_ious)) if ious else None
         mean_grid = [to_model_grid(f, GRID, "frame_max") for f in means]

@@ -139,6 +139,29 @@ def test_structure_metrics_keep_the_scene_and_reject_another():
     assert np.isnan(mask_iou(np.zeros_like(masks[0]), clean[0]))
 
 
+def test_mask_iou_finds_a_target_darker_than_a_bright_seabed_and_loses_it_when_the_output_does():
+    """A calibrated seabed is often brighter than its targets, and a bright band elsewhere takes the frame's
+    brightest cells: the object is sought as what stands out near it, in the polarity the sim input gives it."""
+    rng = np.random.default_rng(4)
+    seabed = np.full((64, 64), 0.5, np.float32) * rng.rayleigh(0.8, (64, 64)).astype(np.float32)
+    seabed[50:56] = 1.0  # a bright band far from the target
+    with_target = seabed.copy()
+    with_target[20:26, 30:38] *= 0.35  # a dim target on the lit seabed
+    mask = np.zeros((64, 64), np.uint8)
+    mask[20:26, 30:38] = 1
+    kept = with_target * rng.rayleigh(0.8, (64, 64)).astype(np.float32)  # new speckle, same scene
+    inverted = seabed.copy()
+    inverted[20:26, 30:38] = 1.0  # an output that made the dark target bright
+    on_input = mask_iou(mask, with_target)
+    assert on_input > 0.4
+    assert mask_iou(mask, kept, with_target) > 0.6 * on_input
+    assert mask_iou(mask, seabed, with_target) < 0.2  # the output lost the target
+    assert mask_iou(mask, inverted, with_target) < 0.1  # sought as dark, as the input has it
+    assert mask_iou(mask, inverted) > 0.8  # by its own polarity the bright patch is found
+    with pytest.raises(ConfigError, match="reference"):
+        mask_iou(mask, kept, with_target[:10])
+
+
 def test_roc_auc_and_bootstrap_known_values():
     assert roc_auc(np.array([0.9, 0.8, 0.1, 0.2]), np.array([1, 1, 0, 0])) == 1.0
     assert roc_auc(np.array([0.5, 0.5]), np.array([1, 0])) == 0.5

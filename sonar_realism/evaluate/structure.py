@@ -4,8 +4,10 @@ Realism scores alone reward a translator that paints a plausible real seabed and
 these two numbers catch that. Both work on model grids (float32 [rows, cols] in [0, 1]).
 * edge SSIM: SSIM between the gradient-magnitude maps of input and output after a Gaussian blur that
   suppresses speckle (texture is supposed to change; object outlines and shadows are not).
-* mask IoU: the simulator knows which cells hold an object; the same number of brightest cells of the
-  blurred output should fall on them.
+* mask IoU: the simulator knows which cells hold an object; within the object's neighbourhood, the same number
+  of cells that stand out most from it (brighter, or darker where the object is darker than its surroundings in
+  the sim input) should fall on them. Looking only near the object keeps the measure posed when the object is
+  not the brightest thing in the frame (a calibrated seabed is often brighter than its targets).
 """
 
 from __future__ import annotations
@@ -53,19 +55,41 @@ def edge_ssim(sim_input: np.ndarray, output: np.ndarray) -> float:
     return ssim(edge_map(sim_input), edge_map(output))
 
 
-def mask_iou(mask: np.ndarray, output: np.ndarray) -> float:
-    """IoU of the object mask with the equally many brightest cells of the blurred output (NaN: no object)."""
-    if mask.shape != output.shape:
-        raise ConfigError(f"mask_iou: shapes differ {mask.shape} vs {output.shape}")
+NEIGHBOURHOOD_MARGIN = 1.0  # the object's box is grown by this many of its own sizes on each side ...
+NEIGHBOURHOOD_MIN_CELLS = 6  # ... and by at least this many cells, so a small object has surroundings
+
+
+def mask_iou(mask: np.ndarray, output: np.ndarray, reference: np.ndarray | None = None) -> float:
+    """IoU of the object mask with the cells of the blurred `output` that stand out most from the object's
+    neighbourhood (as many as the mask has; NaN: no object). A cell stands out by its log level over the
+    neighbourhood's median, in the direction the object stands out in `reference` (the translator's sim input;
+    `output` itself when None), so a dark target on a bright seabed is sought as dark in the output too."""
+    if mask.shape != output.shape or (reference is not None and reference.shape != output.shape):
+        raise ConfigError(f"mask_iou: shapes differ: mask {mask.shape}, output {output.shape}"
+                          + ("" if reference is None else f", reference {reference.shape}"))
     truth = mask > 0
     area = int(truth.sum())
     if area == 0:
         return float("nan")
-    smooth = cv2.GaussianBlur(output.astype(np.float32), (0, 0), SPECKLE_BLUR_SIGMA).ravel()
-    predicted = np.zeros(smooth.size, bool)
-    predicted[np.argpartition(-smooth, area - 1)[:area]] = True
+    rows, cols = np.nonzero(truth)
+    grow_rows = max(NEIGHBOURHOOD_MIN_CELLS, int(NEIGHBOURHOOD_MARGIN * (np.ptp(rows) + 1)))
+    grow_cols = max(NEIGHBOURHOOD_MIN_CELLS, int(NEIGHBOURHOOD_MARGIN * (np.ptp(cols) + 1)))
+    box = (slice(max(0, rows.min() - grow_rows), rows.max() + grow_rows + 1),
+           slice(max(0, cols.min() - grow_cols), cols.max() + grow_cols + 1))
+    truth = truth[box]
+    standout = _log_contrast(output, box)
+    polarity = _log_contrast(reference if reference is not None else output, box)[truth].mean()
+    score = (standout if polarity >= 0 else -standout).ravel()
+    predicted = np.zeros(score.size, bool)
+    predicted[np.argpartition(-score, area - 1)[:area]] = True
     predicted = predicted.reshape(truth.shape)
     return float((truth & predicted).sum() / (truth | predicted).sum())
+
+
+def _log_contrast(image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
+    """Log level of the speckle-blurred image over the median of `box`, inside `box` (one 8-bit step of floor)."""
+    smooth = cv2.GaussianBlur(image.astype(np.float32), (0, 0), SPECKLE_BLUR_SIGMA)[box]
+    return np.log(smooth + 1 / 255) - np.log(float(np.median(smooth)) + 1 / 255)
 
 
 def mask_to_grid(mask: np.ndarray, frame: SonarImage, grid: tuple[int, int]) -> np.ndarray:

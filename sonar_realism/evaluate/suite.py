@@ -136,7 +136,8 @@ def _method_metrics(outputs: np.ndarray, native: list[np.ndarray], inputs: np.nd
     kid = kernel_inception_distance(reference_features, embeddings(cnn, first), n_subsets=config.kid_subsets,
                                     seed=config.seed)
     spectra, real_spectra = power_spectra(first), power_spectra(reference)
-    ious = [mask_iou(mask, out) for mask, out in zip(masks, first, strict=True) if mask is not None and mask.any()]
+    ious = [mask_iou(mask, out, source) for mask, out, source in zip(masks, first, inputs, strict=True)
+            if mask is not None and mask.any()]
     metrics: dict[str, Any] = {
         "c2st": dataclasses.asdict(c2st),
         "texture_c2st": dataclasses.asdict(texture_c2st),
