@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import shlex
 import sys
 
 from sonar_realism.data import DATA_ENV
@@ -47,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     if chosen is None:
         parser.print_help()
         return 2
+    # what a run records as its command: as typed, not where this machine installed the program
+    args.command_line = "sonar-realism " + shlex.join(argv)
     if args.data:  # one setting for every part that finds the real sets (sonar_realism.data)
         os.environ[DATA_ENV] = args.data
     module = importlib.import_module(SUBCOMMANDS[chosen][0])

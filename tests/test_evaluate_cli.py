@@ -47,6 +47,7 @@ def test_evaluate_writes_table_metrics_and_figures(tmp_path):
                  "--grid", "32x32", "--n", "2", "--cnn-epochs", "8"]) == 0
 
     results = json.loads((out / "results.json").read_text())
+    assert results["inputs"]["command"].startswith(f"sonar-realism evaluate --real {tmp_path / 'real'} --sim ")
     assert set(results["table"]) == {"organic", "constructed", "all"}
     assert set(results["table"]["organic"]) == {"raw sim", "cyclegan"}
     assert results["data"] == {"n_real": 16, "n_real_cnn": 8, "n_real_reference": 8, "n_sim_cnn": 8,

@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     sim = _sim_inputs(args)
     result = run_suite(real, sim, translators, config, log=lambda line: print(line, file=sys.stderr))
     report = write_report(result, args.out, {"real": str(args.real), "sim": args.sim or args.scenes,
-                                             "models": paths, "command": " ".join(sys.argv)})
+                                             "models": paths, "command": args.command_line})
     print(f"report: {report}", file=sys.stderr)
     table = result.summary["table"]["all"]
     for name, cell in table.items():
