@@ -39,7 +39,6 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -68,6 +67,7 @@ from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.io import read_frames  # noqa: E402
 from sonar_realism.models.cyclegan import CycleGANTranslator  # noqa: E402
 from sonar_realism.models.translate import Translator, load_translator  # noqa: E402
+from sonar_realism.sim.masks import frames_with_masks, mask_path  # noqa: E402
 
 RAW = "raw sim"
 REAL_FIT = "real: fit recording (reference)"
@@ -127,14 +127,12 @@ def real_labelled(recording: str, grid: tuple[int, int], data: str | None) -> La
 
 
 def simulated_with_masks(folder: Path) -> tuple[list[SonarImage], list[np.ndarray]]:
-    frames = list(read_frames(folder))
-    masks = []
-    for index in range(len(frames)):
-        path = folder / "masks" / f"{index:06d}.png"
-        mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    frames, masks = [], []
+    for index, (frame, mask) in enumerate(frames_with_masks(folder)):
         if mask is None:
-            raise ConfigError(f"{path}: missing or unreadable object mask (write the folder with "
+            raise ConfigError(f"{mask_path(folder, index)}: missing object mask (write the folder with "
                               "`sonar-realism simulate`)")
+        frames.append(frame)
         masks.append(mask)
     return frames, masks
 

@@ -30,7 +30,6 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -53,6 +52,7 @@ from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.io import read_frames  # noqa: E402
 from sonar_realism.models.datasets import normalise, to_model_grid  # noqa: E402
 from sonar_realism.models.translate import load_translator  # noqa: E402
+from sonar_realism.sim.masks import read_mask  # noqa: E402
 
 GRID = (128, 128)
 RAW = "raw sim"
@@ -77,8 +77,7 @@ def sim_inputs(folders: list[str], per_folder: int) -> tuple[list[SonarImage], l
         loaded = list(read_frames(folder))
         for index in np.linspace(0, len(loaded) - 1, min(per_folder, len(loaded))).astype(int):
             frames.append(loaded[index])
-            mask_path = Path(folder) / "masks" / f"{index:06d}.png"
-            masks.append(cv2.imread(str(mask_path), cv2.IMREAD_UNCHANGED) if mask_path.is_file() else None)
+            masks.append(read_mask(folder, int(index), loaded[index]))
     return frames, masks
 
 

@@ -12,6 +12,7 @@ from sonar_realism.evaluate.cli import _translator_from_spec
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.models.translate import Translator
+from sonar_realism.sim.masks import write_mask
 
 
 def frames(n: int, seed: int, speckle: bool, scene: str | None = None) -> list[SonarImage]:
@@ -33,7 +34,10 @@ def frames(n: int, seed: int, speckle: bool, scene: str | None = None) -> list[S
 
 def test_evaluate_writes_table_metrics_and_figures(tmp_path):
     write_frames(frames(16, 1, speckle=True), tmp_path / "real")
-    write_frames(frames(8, 2, speckle=False), tmp_path / "organic")  # category from the folder name
+    organic = frames(8, 2, speckle=False)
+    write_frames(organic, tmp_path / "organic")  # category from the folder name
+    for index, frame in enumerate(organic):  # object masks beside the frames, as `sonar-realism simulate` writes
+        write_mask(tmp_path / "organic", index, (frame.intensity == 255).astype(np.uint8))
     write_frames(frames(8, 3, speckle=False, scene="constructed"), tmp_path / "sim2")  # from frame meta
     write_frames(frames(8, 4, speckle=False), tmp_path / "train_sim")
     (tmp_path / "tiny.json").write_text(json.dumps({"ngf": 4, "ndf": 4, "n_blocks": 1}))
@@ -61,6 +65,7 @@ def test_evaluate_writes_table_metrics_and_figures(tmp_path):
     assert cyclegan["diversity"]["relative"] == 0.0  # deterministic translator: n identical samples
     assert results["methods"]["raw sim"]["c2st"]["accuracy"] >= 0.5
     assert results["methods"]["raw sim"]["edge_ssim"] == 1.0  # raw sim is its own input
+    assert results["methods"]["raw sim"]["mask_iou"] > 0.8  # the masks of the organic folder were read
     report = (out / "report.md").read_text()
     assert "Table I" in report and "paper 0.114–0.212" in report and "| cyclegan |" in report
     for name in results["figures"].values():

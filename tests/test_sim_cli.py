@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -11,8 +12,12 @@ import numpy as np
 import pytest
 
 from sonar_realism.cli import main
+from sonar_realism.errors import FormatError
 from sonar_realism.io import read_frames
+from sonar_realism.sim import simulate
 from sonar_realism.sim.effects import PIPELINE_ORDER
+from sonar_realism.sim.masks import frames_with_masks
+from sonar_realism.sim.sensor import SENSORS
 
 SMALL_GRID = ["--beams", "48", "--ranges", "96", "--range-m", "10", "--quiet"]
 SAMPLE = Path(__file__).resolve().parents[1] / "sonar_realism" / "assets" / "sim_sample"
@@ -27,8 +32,11 @@ def test_raw_sim_folder_reads_back_with_masks_and_manifest(tmp_path: Path) -> No
     assert frames[0].meta["scene"] == "default" and frames[0].max_range_m < 10.0
     masks = sorted((out / "masks").glob("*.png"))
     assert len(masks) == 3
-    mask = cv2.imread(str(masks[0]), cv2.IMREAD_UNCHANGED)
-    assert mask.shape == (96, 48) and mask.dtype == np.uint8
+    read_back = [mask for _, mask in frames_with_masks(out)]
+    assert all(m.shape == (96, 48) and m.dtype == np.uint8 for m in read_back)
+    sensor = dataclasses.replace(SENSORS["m1200d_1200khz"], n_ranges=96, n_beams=48, max_range_m=10.0)
+    for mask, (_, simulated) in zip(read_back, simulate(scene="default", n=3, seed=4, sensor=sensor), strict=True):
+        np.testing.assert_array_equal(mask, simulated)  # frame i's mask, in the order the frames read back
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["scene"] == "default" and manifest["seed"] == 4 and manifest["n"] == 3
     assert manifest["effects"] == [] and len(manifest["poses"]) == 3 and manifest["objects"]
@@ -38,6 +46,16 @@ def test_raw_sim_folder_reads_back_with_masks_and_manifest(tmp_path: Path) -> No
     assert main(["simulate", "--n", "3", "--out", str(again), "--seed", "4", *SMALL_GRID]) == 0
     for a, b in zip(frames, read_frames(again), strict=True):
         np.testing.assert_array_equal(a.intensity, b.intensity)
+
+
+def test_masks_are_none_where_a_folder_has_none_and_an_error_where_one_does_not_fit(tmp_path: Path) -> None:
+    out = tmp_path / "raw"
+    assert main(["simulate", "--n", "2", "--out", str(out), *SMALL_GRID]) == 0
+    (out / "masks" / "000001.png").unlink()
+    assert [mask is None for _, mask in frames_with_masks(out)] == [False, True]
+    cv2.imwrite(str(out / "masks" / "000001.png"), np.zeros((10, 10), np.uint8))
+    with pytest.raises(FormatError, match=r"000001\.png: mask: shape \(10, 10\)"):
+        list(frames_with_masks(out))
 
 
 def test_all_effects_with_overrides_recorded(tmp_path: Path) -> None:

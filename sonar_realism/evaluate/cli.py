@@ -20,6 +20,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.suite import SimInput, SuiteConfig, Translator
 from sonar_realism.io import read_frames
 from sonar_realism.models.realism_cnn import RealismCNNConfig
+from sonar_realism.sim.masks import frames_with_masks
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,9 +59,9 @@ def _translator_from_spec(spec: str, device: str) -> tuple[str, Translator, str]
 def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
     if args.sim:
         items = []
-        for folder in args.sim:
-            for frame in tqdm(read_frames(folder), desc=f"read {folder}", unit="frame"):
-                items.append(SimInput(frame, str(frame.meta.get("scene") or Path(folder).name)))
+        for folder in args.sim:  # with the object masks `sonar-realism simulate` writes beside its frames
+            for frame, mask in tqdm(frames_with_masks(folder), desc=f"read {folder}", unit="frame"):
+                items.append(SimInput(frame, str(frame.meta.get("scene") or Path(folder).name), mask))
         return items
     from sonar_realism.sim import simulate
 

@@ -24,7 +24,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -35,6 +34,7 @@ from sonar_realism.io import write_frames
 from sonar_realism.sim.calibrated import calibrated_chain, finish, sensor_for, simulate_calibrated
 from sonar_realism.sim.calibration import SHIPPED_CALIBRATIONS, load_calibration
 from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
+from sonar_realism.sim.masks import write_mask
 from sonar_realism.sim.scene import SCENES, build_scene
 from sonar_realism.sim.sensor import SENSORS, SensorConfig
 from sonar_realism.sim.simulate import simulate
@@ -104,7 +104,6 @@ def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param)
     effects = resolve_effects(args.effects, params)  # validates names and parameters before any work
     out = Path(args.out)
-    (out / "masks").mkdir(parents=True, exist_ok=True)
 
     world = build_scene(args.scene, args.seed, sensor.max_range_m)
     poses = world.trajectory(args.n)
@@ -113,8 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
     def frames() -> Iterator[SonarImage]:
         for index, (frame, mask) in enumerate(simulated):
-            if not cv2.imwrite(str(out / "masks" / f"{index:06d}.png"), mask):
-                raise ConfigError(f"could not write {out / 'masks' / f'{index:06d}.png'}")
+            write_mask(out, index, mask)
             yield _stored(frame, args.dtype)
 
     count = write_frames(frames(), out)
@@ -144,7 +142,6 @@ def run_calibrated(args: argparse.Namespace) -> int:
     params = parse_params(args.param)
     chain = calibrated_chain(calibration, args.effects or "all", params)
     out = Path(args.out)
-    (out / "masks").mkdir(parents=True, exist_ok=True)
     objects: list[list[dict[str, Any]]] = []
     poses: list[dict[str, float]] = []
 
@@ -160,8 +157,7 @@ def run_calibrated(args: argparse.Namespace) -> int:
     def frames() -> Iterator[SonarImage]:
         for index, (frame, mask) in enumerate(tqdm(pairs, desc="simulate", total=args.n, unit="frame",
                                                    disable=args.quiet)):
-            if not cv2.imwrite(str(out / "masks" / f"{index:06d}.png"), mask):
-                raise ConfigError(f"could not write {out / 'masks' / f'{index:06d}.png'}")
+            write_mask(out, index, mask)
             objects.append(list(frame.meta.get("objects", [])))
             poses.append(dict(frame.meta.get("pose", {})))
             yield _stored(frame, args.dtype)
