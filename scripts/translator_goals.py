@@ -160,7 +160,11 @@ def main() -> int:
                 on_grid = mask_to_grid(mask, frame, GRID)
                 ious.append(mask_iou(on_grid, output, source))
                 input_ious.append(mask_iou(on_grid, source))
-        row["mask_iou_ratio"] = float(np.nanmean(ious) / np.nanmean(input_ious)) if ious else None
+        # the ratio is the goal; the two IoUs beside it say whether the input itself showed its objects
+        row.update(mask_iou=None, mask_iou_input=None, mask_iou_ratio=None)
+        if ious:
+            iou, input_iou = float(np.nanmean(ious)), float(np.nanmean(input_ious))
+            row.update(mask_iou=iou, mask_iou_input=input_iou, mask_iou_ratio=iou / input_iou)
         mean_grid = [to_model_grid(f, GRID, "frame_max") for f in means]
         row["edge_ssim_mean"] = float(np.mean([edge_ssim(a, b) for a, b in zip(input_grid, mean_grid,
                                                                               strict=True)]))
