@@ -34,7 +34,7 @@ from sonar_realism.io import write_frames
 from sonar_realism.sim.calibrated import calibrated_chain, finish, sensor_for, simulate_calibrated
 from sonar_realism.sim.calibration import SHIPPED_CALIBRATIONS, load_calibration
 from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
-from sonar_realism.sim.masks import write_mask
+from sonar_realism.sim.masks import MASK_FILES, write_mask
 from sonar_realism.sim.scene import SCENES, build_scene
 from sonar_realism.sim.sensor import SENSORS, SensorConfig
 from sonar_realism.sim.simulate import simulate
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         "poses": [p.as_dict() for p in poses],
         "objects": [{"id": o.object_id, "kind": o.kind, "position": list(o.position), "material": o.material}
                     for o in world.objects],
-        "masks": "masks/NNNNNN.png: uint8 object id per [range, beam] pixel (0 = none), ids as in 'objects'",
+        "masks": f"{MASK_FILES}, ids as in 'objects'",
         "storage": args.dtype if not any(e.name == "gamma_quantization" for e in effects) else "uint8",
         "command": "sonar-realism simulate " + " ".join(shlex.quote(a) for a in _argv_of(args)),
     }
@@ -173,7 +173,7 @@ def run_calibrated(args: argparse.Namespace) -> int:
         "objects": objects if args.scene is None else [
             {"id": o.object_id, "kind": o.kind, "position": list(o.position), "material": o.material}
             for o in world.objects],
-        "masks": "masks/NNNNNN.png: uint8 object id per [range, beam] pixel (0 = none); with a calibration the ids "
+        "masks": f"{MASK_FILES}; with a calibration the ids "
                  "are per frame (objects[i] lists frame i's)",
         "command": "sonar-realism simulate " + " ".join(shlex.quote(a) for a in argv),
     }

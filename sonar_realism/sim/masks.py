@@ -18,6 +18,8 @@ from sonar_realism.frames import SonarImage
 from sonar_realism.io import read_frames
 
 MASKS_FOLDER = "masks"
+# what a simulate manifest says of them
+MASK_FILES = f"{MASKS_FOLDER}/NNNNNN.png: uint8 object id per [range, beam] pixel (0 = none)"
 
 
 def mask_path(folder: str | Path, index: int) -> Path:
