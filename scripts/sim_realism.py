@@ -15,7 +15,11 @@ Measures (all on frames scaled by their own maximum, the real export's rule):
 - mean range and bearing profiles (48 bins): mean |sim - real| over the real profile's mean;
 - speckle contrast (evaluate.texture.speckle_statistics per frame, mean over range bands);
 - grain: lag-1 correlation of the detrended frame along range and across beams (evaluate.statistics);
-- the texture's range asymmetry (evaluate.texture.range_asymmetry), beside the held-out recording's.
+- the texture's range asymmetry (evaluate.texture.range_asymmetry), beside the held-out recording's;
+- the targets (sim/annotations.py's measures): share of frames with one, count in such a frame, median width across
+  the fan, range share and return over the seabed median, and the objects' share of the frame's cells, for the sim
+  (its masks: the lit surface) and the held-out frames (their own annotations: the ARIS set's masks, classes 1-10;
+  the Oculus set's YOLO boxes, which frame the whole echo, so their area is larger by convention).
 Classifier tests are averaged over --seeds (each seed: new sim frames and a new classifier initialisation).
 """
 
@@ -27,6 +31,7 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +50,14 @@ from sonar_realism.evaluate.two_sample import (  # noqa: E402
 )
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.models.datasets import to_model_grid  # noqa: E402
-from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, load_recording  # noqa: E402
+from sonar_realism.sim.annotations import (  # noqa: E402
+    AnnotatedObject,
+    mask_objects,
+    measure_objects,
+    parse_classes,
+    read_annotations,
+)
+from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, load_recording, prepare_frames  # noqa: E402
 from sonar_realism.sim.calibrated import simulate_calibrated  # noqa: E402
 from sonar_realism.sim.calibration import Calibration, load_calibration, save_calibration  # noqa: E402
 from sonar_realism.sim.fingerprint import PROFILE_BINS, per_frame_rescaled, resample_profile  # noqa: E402
@@ -82,6 +94,19 @@ def compare(candidate: dict[str, object], real: dict[str, object]) -> dict[str, 
     return out
 
 
+def object_statistics(frames: list[SonarImage], objects: Sequence[Sequence[AnnotatedObject]]) -> dict[str, float]:
+    measured = [measure_objects(f, i, o) for f, i, o in zip(frames, scaled(frames), objects, strict=True)]
+    counts = np.array([len(m) for m in measured])
+    flat = [x for m in measured for x in m]
+    if not flat:
+        return {"frames_with_objects": 0.0}
+    return {"frames_with_objects": float((counts > 0).mean()), "objects_per_frame_with_any": float(
+        counts[counts > 0].mean()), "size_m_median": float(np.median([x.size_m for x in flat])),
+            "range_fraction_median": float(np.median([x.range_fraction for x in flat])),
+            "highlight_median": float(np.median([x.highlight for x in flat])),
+            "area_share_mean": float(np.mean([sum(x.area_share for x in m) for m in measured]))}
+
+
 def classifiers(real: list[SonarImage], other: list[SonarImage], seed: int) -> dict[str, float]:
     torch.manual_seed(seed)
     grid_real = np.stack([to_model_grid(f, GRID, "frame_max") for f in real])
@@ -115,11 +140,13 @@ def main() -> int:
         held = evenly(held, min(len(held), 120))
         config = CalibrateConfig(vertical_fov_deg=14.0, texture="speckle")  # the ARIS recipe (scripts/train_aris.sh)
         source = "ARIS water tank, even frames"
+        annotations = read_annotations(held, [real_aris_dir() / "Masks"], parse_classes("1-10"))
     else:
         fit_real = load_recording(real_oculus_dir(), OCULUS_FIT_RECORDING)
         held = load_recording(real_oculus_dir(), OCULUS_HELD_OUT_RECORDING)
         config = CalibrateConfig()
         source = f"oculus_polar_seabed [{OCULUS_FIT_RECORDING}]"
+        annotations = read_annotations(held, sorted(real_oculus_dir().glob("*/labels")))
     if args.calibration:
         calibration: Calibration = load_calibration(args.calibration)
     else:
@@ -129,10 +156,12 @@ def main() -> int:
     yardstick = evenly(fit_real, len(held))
 
     real_stats = statistics(scaled(held))
+    metric_held, _ = prepare_frames(held, config)  # the tables calibrate measures sizes on
     results: dict[str, dict] = {"real_fit_recording": {}, "calibrated_sim": {}}
     per_seed: dict[str, list[dict[str, float]]] = {"real_fit_recording": [], "calibrated_sim": []}
     for seed in args.seeds:
-        sim = [f for f, _ in simulate_calibrated(calibration, len(held), seed=1000 + seed)]
+        pairs = list(simulate_calibrated(calibration, len(held), seed=1000 + seed))
+        sim = [f for f, _ in pairs]
         per_seed["calibrated_sim"].append(classifiers(held, sim, seed))
         per_seed["real_fit_recording"].append(classifiers(held, yardstick, seed))
         print(f"seed {seed}: sim {per_seed['calibrated_sim'][-1]}, real {per_seed['real_fit_recording'][-1]}",
@@ -141,10 +170,12 @@ def main() -> int:
             results["calibrated_sim"]["statistics"] = compare(statistics(scaled(sim)), real_stats)
             results["real_fit_recording"]["statistics"] = compare(statistics(scaled(yardstick)), real_stats)
             results["calibrated_sim"]["near_zero"] = statistics(scaled(sim))["near_zero"]
+            results["calibrated_sim"]["targets"] = object_statistics(sim, [mask_objects(m) for _, m in pairs])
     for name, runs in per_seed.items():
         results[name]["classifiers"] = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
         results[name]["classifiers_per_seed"] = runs
     results["held_out_near_zero"] = real_stats["near_zero"]
+    results["held_out_targets"] = object_statistics(metric_held, annotations.objects)
     results["setting"] = {"set": "aris" if args.aris else "oculus", "held_out_frames": len(held),
                           "fit_frames": len(fit_real), "seeds": args.seeds, "calibration_distances":
                           calibration.distances, "seconds": round(time.time() - started, 1),

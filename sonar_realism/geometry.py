@@ -102,8 +102,11 @@ def _fractional_index(values: np.ndarray, table: np.ndarray) -> np.ndarray:
     return np.where(outside, _OUTSIDE, index)
 
 
-def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """cv2.remap over the last two axes of `image`, for every dtype SonarImage allows."""
+def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, nearest: bool = False) -> np.ndarray:
+    """cv2.remap over the last two axes of `image`, for every dtype SonarImage allows (`nearest`: labels, which
+    must not blend)."""
+    if nearest:
+        return cv2.remap(image, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
     if image.ndim == 3:
         return np.stack([_remap(plane, map_x, map_y) for plane in image])
     if image.dtype == np.uint32:
@@ -173,8 +176,9 @@ def _native(intensity: np.ndarray) -> np.ndarray:
 
 
 def fan_to_polar(image: np.ndarray, layout: FanLayout, ranges_m: np.ndarray,
-                 azimuths_rad: np.ndarray) -> np.ndarray:
-    """Polar [n_ranges, n_beams] samples of a Cartesian fan image (0 where the cell falls outside the image)."""
+                 azimuths_rad: np.ndarray, nearest: bool = False) -> np.ndarray:
+    """Polar [n_ranges, n_beams] samples of a Cartesian fan image (0 where the cell falls outside the image);
+    `nearest` for a label image (class ids), which interpolation would blend."""
     ranges = np.asarray(ranges_m, dtype=np.float64)
     azimuths = np.asarray(azimuths_rad, dtype=np.float64)
     if image.shape[-2:] != (layout.height_px, layout.width_px):
@@ -189,7 +193,7 @@ def fan_to_polar(image: np.ndarray, layout: FanLayout, ranges_m: np.ndarray,
         return x.astype(np.float32), y.astype(np.float32)
 
     map_x, map_y = _MAPS.get(("polar", ranges.tobytes(), azimuths.tobytes(), layout), build)
-    return _remap(image, map_x, map_y)
+    return _remap(image, map_x, map_y, nearest)
 
 
 # ---------------------------------------------------------------------------------------------- polar -> polar

@@ -30,8 +30,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from sonar_realism.errors import ConfigError, FormatError
+from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
+from sonar_realism.io.yolo import read_yolo_labels
 from sonar_realism.models.datasets import to_model_grid
 
 STRIDE = 4  # grid cells per heatmap cell
@@ -173,31 +174,11 @@ def _bin_edges_on_grid(n_bins: int, first: int, last: int, n_grid: int) -> tuple
 
 
 def read_yolo_boxes(path: str | Path, grid: tuple[int, int]) -> list[Box]:
-    """The boxes of a YOLO label file (`class cx cy w h` per line, normalised to the image; rows = range,
-    columns = beams), on the model grid. Every class counts as "object"; blank lines are skipped."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise FormatError(str(path), "labels", f"cannot read the label file ({error})") from error
-    boxes = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        fields = line.split()
-        if len(fields) != 5:
-            raise FormatError(str(path), f"line {number}", f"expected 'class cx cy w h', got {line.strip()!r}")
-        try:
-            label, cx, cy, width, height = int(fields[0]), *(float(f) for f in fields[1:])
-        except ValueError as error:
-            raise FormatError(str(path), f"line {number}", f"not numbers: {line.strip()!r}") from error
-        if label < 0 or not all(0.0 <= v <= 1.0 for v in (cx, cy, width, height)) or width <= 0 or height <= 0:
-            raise FormatError(str(path), f"line {number}", "class must be >= 0 and cx cy w h in [0, 1] with w, h > 0, "
-                                                           f"got {line.strip()!r}")
-        rows, cols = grid
-        boxes.append(Box((cy - height / 2) * rows, (cx - width / 2) * cols, (cy + height / 2) * rows,
-                         (cx + width / 2) * cols))
-    return boxes
+    """The boxes of a YOLO label file (io/yolo.py; rows = range, columns = beams), on the model grid. Every class
+    counts as "object"."""
+    rows, cols = grid
+    return [Box((y.cy - y.height / 2) * rows, (y.cx - y.width / 2) * cols, (y.cy + y.height / 2) * rows,
+                (y.cx + y.width / 2) * cols) for y in read_yolo_labels(path)]
 
 
 # --- training -------------------------------------------------------------------------------------------------------

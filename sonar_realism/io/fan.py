@@ -157,7 +157,7 @@ def fan_image_to_frame(image: np.ndarray, path: Path, sidecar: ImageSidecar | No
                        px_per_m=px_per_m, range_up=bool(range_up))
     intensity = fan_to_polar(image, layout, ranges, azimuths)
     meta = {**meta, "converted_from": "fan", "fan_apex_px": [float(apex_x), float(apex_y)],
-            "fan_px_per_m": px_per_m}
+            "fan_px_per_m": px_per_m, "fan_image_px": [width, height], "fan_range_up": bool(range_up)}
     if measured:
         meta["measured_from_image"] = measured
     if sidecar.px_per_m is None:

@@ -1,6 +1,7 @@
 """`sonar-realism calibrate`: fit the simulator to one sensor in one setting from its recording alone.
 
     sonar-realism calibrate --real PATH --out CALIB.json [--report REPORT.html] [--match TEXT]
+                            [--targets-from FOLDER ... [--target-classes IDS]]
 
 PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the ARIS Cartesian fan set). In order:
 
@@ -12,7 +13,9 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    lands on the real one (the same detector on both);
 3. the seabed: its roughness (`_match_relief`: no more relief shadow than the recording's dark seabed allows),
    then patch contrast, correlation length and dark share of the mean level, matched by simulation;
-   targets: how often a long shadow shows, its width (the target's size) and where it starts;
+   targets: how often a long shadow shows, its width (the target's size) and where it starts; or, with
+   `--targets-from`, the recording's own annotations (sim/annotations.py: YOLO boxes or class-id masks): how
+   many frames show a target, how many each shows, their width across the fan, range and return;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py);
 5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
@@ -45,6 +48,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.models.speckle_fit import EXPORT_KNEE_LOW, top_ratio
 from sonar_realism.sim import measure
+from sonar_realism.sim.annotations import Annotations, measure_objects, parse_classes, read_annotations
 from sonar_realism.sim.calibrated import (
     SeabedLook,
     calibrated_view,
@@ -55,6 +59,7 @@ from sonar_realism.sim.calibrated import (
 )
 from sonar_realism.sim.calibration import (
     CALIBRATION_VERSION,
+    MAX_TARGETS,
     Calibration,
     Estimate,
     FittedParameter,
@@ -590,13 +595,63 @@ def _gain_update(real: Fingerprint, sim: Fingerprint, gamma: float, knots: int, 
     return np.clip(resample_profile(ratio_db, knots), -12.0, 12.0)
 
 
+# ----------------------------------------------------------------------------------------------- targets
+
+
+def target_terms_from_shadows(frames: Sequence[SonarImage], images: Sequence[np.ndarray], rng: np.random.Generator,
+                              resamples: int) -> TargetTerms:
+    """Targets where a long shadow shows (one per frame at most): their share of frames, the shadow's width across
+    (the target's size), where it starts, and the return just ahead of it."""
+    shadows = [measure.target_shadow(i) for i in images]
+    present = np.array([s is not None for s in shadows], dtype=float)
+    sizes, where, highlights = [], [], []
+    for frame, image, shadow in zip(frames, images, shadows, strict=True):
+        if shadow is None:
+            continue
+        highlights.append(measure.highlight_ratio(image, slice(shadow.first_beam, shadow.first_beam
+                                                               + shadow.width_beams), shadow.start_row))
+        beam_step = frame.fov_rad / max(frame.n_beams - 1, 1)
+        start_m = float(frame.ranges_m[min(shadow.start_row, frame.n_ranges - 1)])
+        sizes.append(shadow.width_beams * beam_step * start_m)
+        where.append(start_m / float(frame.ranges_m[-1]))
+    return TargetTerms(_estimate(present, np.mean, rng, resamples),
+                       _estimate(np.array(sizes), np.median, rng, resamples) if sizes else _fixed(0.5),
+                       _estimate(np.array(where), np.median, rng, resamples) if where else _fixed(0.5),
+                       _estimate(np.array(highlights), np.median, rng, resamples) if highlights else _fixed(2.0), 1.0)
+
+
+def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence[np.ndarray],
+                                  annotations: Annotations, rng: np.random.Generator, resamples: int) -> TargetTerms:
+    """Targets as the recording's annotations draw them: the share of frames with any, how many such a frame has,
+    and the medians of each object's `annotations.ObjectMeasure`."""
+    per_frame = np.array([len(objects) for objects in annotations.objects], dtype=float)
+    measured = [m for frame, image, objects in zip(frames, images, annotations.objects, strict=True)
+                for m in measure_objects(frame, image, objects)]
+    sizes = [m.size_m for m in measured]
+    where = [m.range_fraction for m in measured]
+    highlights = [m.highlight for m in measured]
+    if not sizes:
+        raise ConfigError(f"calibrate: {annotations.source} mark no object in any frame (of the classes asked for); "
+                          "leave out --targets-from to count targets by their shadows")
+    return TargetTerms(_estimate((per_frame > 0).astype(float), np.mean, rng, resamples),
+                       _estimate(np.clip(sizes, 0.02, 20.0), np.median, rng, resamples),
+                       _estimate(np.array(where), np.median, rng, resamples),
+                       _estimate(np.array(highlights), np.median, rng, resamples), 1.0,
+                       count=_estimate(np.clip(per_frame[per_frame > 0], 1, MAX_TARGETS), np.mean, rng, resamples),
+                       source=f"{annotations.source}: {annotations.total} objects in "
+                              f"{annotations.frames_with_objects} of {len(frames)} frames")
+
+
 # ----------------------------------------------------------------------------------------------- the whole fit
 
 
 def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig = CalibrateConfig(),
-              log: Any = None) -> CalibrationResult:
-    """Everything `sonar-realism calibrate` writes, from the recording alone."""
+              log: Any = None, annotations: Annotations | None = None) -> CalibrationResult:
+    """Everything `sonar-realism calibrate` writes, from the recording alone (and its object annotations, frame by
+    frame, when it has them: `annotations.read_annotations`)."""
     config.validate()
+    if annotations is not None and len(annotations.objects) != len(frames):
+        raise ConfigError(f"calibrate: {len(annotations.objects)} frames of annotations for {len(frames)} frames")
     frames, notes = prepare_frames(frames, config)
     say = (lambda text: print(f"calibrate: {text}", file=log)) if log else (lambda text: None)
     rng = np.random.default_rng(config.seed)
@@ -632,22 +687,8 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     if math.isfinite(real_seabed.width_beams) and not resolved_width(real_seabed):
         notes.append(f"seabed patches {real_seabed.width_beams:.0f} beams wide, near the measure's "
                      f"{measure.LOCAL_BOX}-beam box: their width is the recording's measure, not matched")
-    shadows = [measure.target_shadow(i) for i in images]
-    present = np.array([s is not None for s in shadows], dtype=float)
-    sizes, where, highlights = [], [], []
-    for frame, image, shadow in zip(frames, images, shadows, strict=True):
-        if shadow is None:
-            continue
-        highlights.append(measure.highlight_ratio(image, slice(shadow.first_beam, shadow.first_beam
-                                                               + shadow.width_beams), shadow.start_row))
-        beam_step = frame.fov_rad / max(frame.n_beams - 1, 1)
-        start_m = float(frame.ranges_m[min(shadow.start_row, frame.n_ranges - 1)])
-        sizes.append(shadow.width_beams * beam_step * start_m)
-        where.append(start_m / float(frame.ranges_m[-1]))
-    targets = TargetTerms(_estimate(present, np.mean, rng, b),
-                          _estimate(np.array(sizes), np.median, rng, b) if sizes else _fixed(0.5),
-                          _estimate(np.array(where), np.median, rng, b) if where else _fixed(0.5),
-                          _estimate(np.array(highlights), np.median, rng, b) if highlights else _fixed(2.0), 1.0)
+    targets = (target_terms_from_annotations(frames, images, annotations, rng, b) if annotations is not None
+               else target_terms_from_shadows(frames, images, rng, b))
     mean_bin = float(np.median([_bin(f) for f in frames]))
     look = SeabedLook(patch_contrast=min(2.5, real_seabed.contrast / 0.6),
                       patch_scale_m=real_seabed.scale_rows * mean_bin,
@@ -872,6 +913,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the simulated texture. learned (default): a generator trained on the simulated "
                              "levels against the recording (about 9 minutes on 2 cores); speckle: the recording's "
                              "own speckle fitted; none: the catalogue's speckle")
+    parser.add_argument("--targets-from", action="append", metavar="FOLDER",
+                        help="the recording's object annotations, one file per frame named like it: YOLO box files "
+                             "(.txt) or class-id mask images (.png); the targets' share, count, size, range and "
+                             "return are then taken from them instead of from shadows (repeat for several folders)")
+    parser.add_argument("--target-classes", metavar="IDS",
+                        help="with --targets-from: only these class ids are targets, e.g. 1-10 (a wall is not)")
     parser.add_argument("--texture-steps", type=int, default=CalibrateConfig.learned_steps,
                         help=f"training steps of --texture learned (default {DEFAULT_LEARNED_STEPS})")
 
@@ -884,8 +931,13 @@ def run(args: argparse.Namespace) -> int:
                              effect_bootstrap=args.effect_bootstrap, seed=args.seed, texture=args.texture,
                              learned_steps=args.texture_steps)
     frames = load_recording(args.real, args.match, args.limit)
+    if args.target_classes and not args.targets_from:
+        raise ConfigError("--target-classes needs --targets-from (the folders of the annotations)")
+    annotations = (read_annotations(frames, args.targets_from,
+                                    parse_classes(args.target_classes) if args.target_classes else None)
+                   if args.targets_from else None)
     source = Path(args.real).name + (f" [{args.match}]" if args.match else "")
-    result = calibrate(frames, source, config, log=sys.stderr)
+    result = calibrate(frames, source, config, log=sys.stderr, annotations=annotations)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_calibration(result.calibration, out)

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from sonar_realism.frames import SonarImage, uniform_azimuths
-from sonar_realism.sim.calibration import Calibration, Estimate, GridMode, SeabedTerms
+from sonar_realism.sim.calibration import MAX_TARGETS, Calibration, Estimate, GridMode, SeabedTerms
 from sonar_realism.sim.effects import Effect, GammaQuantization, apply_effects, resolve_effects
 from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
@@ -123,6 +123,14 @@ def _polar_cells(n: int) -> tuple[np.ndarray, np.ndarray]:
     return turns, radius
 
 
+def target_count(mean: float, rng: np.random.Generator) -> int:
+    """How many targets a frame with targets shows: one more than a Poisson draw of mean `mean` - 1 (no draw at a
+    mean of one, so calibrations of one target per frame keep their random stream)."""
+    if mean <= 1.0:
+        return 1
+    return 1 + min(int(rng.poisson(mean - 1.0)), MAX_TARGETS - 1)
+
+
 def _place_target(maker: _ObjectMaker, rng: np.random.Generator, calibration: Calibration, pose: Pose,
                   mode: GridMode) -> None:
     t = calibration.targets
@@ -155,7 +163,8 @@ def calibrated_view(calibration: Calibration, seed: int, index: int, look: Seabe
     seabed = make_patch(rng, 2 * (mode.max_range_m + 1.0), look or SeabedLook.of(calibration.seabed))
     maker = _ObjectMaker(seabed, rng)
     if rng.random() < calibration.targets.present_fraction.value:
-        _place_target(maker, rng, calibration, pose, mode)
+        for _ in range(target_count(calibration.targets.count.value, rng)):
+            _place_target(maker, rng, calibration, pose, mode)
     scene = Scene("calibrated", int(rng.integers(2 ** 31)), seabed, tuple(maker.primitives), tuple(maker.objects),
                   trajectory=lambda n: [pose] * n, trajectory_kind="calibrated")
     # unclipped: the recording's bright returns (patches, rims) keep their range until the output mapping

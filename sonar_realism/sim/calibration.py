@@ -18,6 +18,8 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.sim.effects import EFFECTS, Effect, make_effect
 from sonar_realism.sim.texture import LearnedSensorTexture, SensorTexture
 
+# Targets a calibrated frame may show at most (a Poisson draw is capped here).
+MAX_TARGETS = 12
 CALIBRATION_VERSION = 3  # 2: the texture's grain kernel per level group; 3: the patches' width across the fan
 
 
@@ -115,19 +117,25 @@ class SeabedTerms:
 
 @dataclass(frozen=True)
 class TargetTerms:
-    """Targets like the recording's: how many frames show one, their size and where in range they sit."""
+    """Targets like the recording's: how many frames show one, how many such a frame shows, their size and where
+    in range they sit, and what they were measured from ("shadows": a long shadow marks a target; or the
+    recording's own annotations, `calibrate --targets-from`)."""
 
     present_fraction: Estimate
     size_m: Estimate  # diameter / edge length
     range_fraction: Estimate  # target range over the frame's maximum range
     highlight: Estimate  # target return (95th percentile) over the seabed median, in output units
     highlight_gain: float  # amplitude gain on target returns that reproduces `highlight` in simulation
+    count: Estimate = Estimate(1.0, 1.0, 1.0)  # targets in a frame that shows any (mean)
+    source: str = "shadows"
 
     def validate(self) -> None:
         if not 0.0 <= self.present_fraction.value <= 1.0:
             raise ConfigError(f"targets.present_fraction: {self.present_fraction.value} outside 0..1")
         if not 0.02 <= self.size_m.value <= 20.0:
             raise ConfigError(f"targets.size_m: {self.size_m.value} outside 0.02..20 m")
+        if not 1.0 <= self.count.value <= MAX_TARGETS:
+            raise ConfigError(f"targets.count: {self.count.value} outside 1..{MAX_TARGETS}")
 
 
 @dataclass(frozen=True)

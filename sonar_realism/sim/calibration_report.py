@@ -113,8 +113,9 @@ def write_report(result: CalibrationResult, path: str | Path) -> Path:
              s.patch_width_deg.high, " deg"),
         _row("seabed dark share", s.dark_fraction.value, s.dark_fraction.low, s.dark_fraction.high),
         _row("seabed roughness", s.roughness_m.value, s.roughness_m.low, s.roughness_m.high, " m"),
-        _row("frames with a target shadow", t.present_fraction.value, t.present_fraction.low,
+        _row(f"frames with a target ({t.source})", t.present_fraction.value, t.present_fraction.low,
              t.present_fraction.high),
+        _row("targets in such a frame", t.count.value, t.count.low, t.count.high),
         _row("target size", t.size_m.value, t.size_m.low, t.size_m.high, " m"),
         _row("target range / max range", t.range_fraction.value, t.range_fraction.low, t.range_fraction.high),
     ]
