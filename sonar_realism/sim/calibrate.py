@@ -598,26 +598,97 @@ def _gain_update(real: Fingerprint, sim: Fingerprint, gamma: float, knots: int, 
 # ----------------------------------------------------------------------------------------------- targets
 
 
+@dataclass(frozen=True)
+class ShadowTarget:
+    """A target as `measure.target_shadow` finds it: its shadow's width across (m, at the shadow's start), where
+    the shadow starts (over the window's maximum range) and the return just ahead of it over the seabed median."""
+
+    width_m: float
+    range_fraction: float
+    highlight: float
+
+
+def shadow_target(frame: SonarImage, image: np.ndarray) -> ShadowTarget | None:
+    """The target `measure.target_shadow` finds in `image` (the frame scaled to its maximum), on `frame`'s tables."""
+    shadow = measure.target_shadow(image)
+    if shadow is None:
+        return None
+    beam_step = frame.fov_rad / max(frame.n_beams - 1, 1)
+    start_m = float(frame.ranges_m[min(shadow.start_row, frame.n_ranges - 1)])
+    columns = slice(shadow.first_beam, shadow.first_beam + shadow.width_beams)
+    return ShadowTarget(shadow.width_beams * beam_step * start_m, start_m / float(frame.ranges_m[-1]),
+                        measure.highlight_ratio(image, columns, shadow.start_row))
+
+
 def target_terms_from_shadows(frames: Sequence[SonarImage], images: Sequence[np.ndarray], rng: np.random.Generator,
                               resamples: int) -> TargetTerms:
-    """Targets where a long shadow shows (one per frame at most): their share of frames, the shadow's width across
-    (the target's size), where it starts, and the return just ahead of it."""
-    shadows = [measure.target_shadow(i) for i in images]
-    present = np.array([s is not None for s in shadows], dtype=float)
-    sizes, where, highlights = [], [], []
-    for frame, image, shadow in zip(frames, images, shadows, strict=True):
-        if shadow is None:
-            continue
-        highlights.append(measure.highlight_ratio(image, slice(shadow.first_beam, shadow.first_beam
-                                                               + shadow.width_beams), shadow.start_row))
-        beam_step = frame.fov_rad / max(frame.n_beams - 1, 1)
-        start_m = float(frame.ranges_m[min(shadow.start_row, frame.n_ranges - 1)])
-        sizes.append(shadow.width_beams * beam_step * start_m)
-        where.append(start_m / float(frame.ranges_m[-1]))
+    """Targets where a shadow shows behind a return (one per frame at most), as measured: the share of frames
+    with one, the shadow's width across, where it starts, and the return ahead of it. What the detector finds
+    is not all there is (it misses targets, and it takes some seabed for one): `match_shadow_targets` then sets
+    the simulated targets so that the same detector finds the same in simulation."""
+    found = [shadow_target(frame, image) for frame, image in zip(frames, images, strict=True)]
+    seen = [t for t in found if t is not None]
+    present = np.array([t is not None for t in found], dtype=float)
+
+    def median_of(values: list[float], default: float) -> Estimate:
+        return _estimate(np.array(values), np.median, rng, resamples) if values else _fixed(default)
+
     return TargetTerms(_estimate(present, np.mean, rng, resamples),
-                       _estimate(np.array(sizes), np.median, rng, resamples) if sizes else _fixed(0.5),
-                       _estimate(np.array(where), np.median, rng, resamples) if where else _fixed(0.5),
-                       _estimate(np.array(highlights), np.median, rng, resamples) if highlights else _fixed(2.0), 1.0)
+                       median_of([t.width_m for t in seen], 0.5), median_of([t.range_fraction for t in seen], 0.5),
+                       median_of([t.highlight for t in seen], 2.0), 1.0)
+
+
+def _sim_shadow_targets(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int,
+                        present: float) -> list[ShadowTarget | None]:
+    """What the shadow detector finds in `n` simulated frames, targets in a share `present` of them."""
+    calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
+        calibration.targets, present_fraction=_fixed(present)))
+    clean = clean_views(calibration, n, seed)
+    return [shadow_target(frame, image) for frame, image in zip(clean, finished_images(calibration, clean, chain, seed),
+                                                                strict=True)]
+
+
+def match_shadow_targets(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int,
+                         steps: int = 5) -> Calibration:
+    """Shadow-measured targets set so that the detector finds in simulation what it found in the recording: the
+    size whose detected shadows are as wide (bisection on a factor of 1/4..4), the share of frames with a target
+    whose detection rate is the recording's (the rate is linear in it between the rates of frames without and
+    with targets), and the return's gain. Intervals move with their values."""
+    t = calibration.targets
+    if t.present_fraction.value <= 0:
+        return calibration  # nothing found: no targets
+
+    def with_targets(**changes: Any) -> Calibration:
+        return dataclasses.replace(calibration, targets=dataclasses.replace(calibration.targets, **changes))
+
+    def widths(candidate: Calibration) -> list[float]:
+        return [f.width_m for f in _sim_shadow_targets(candidate, chain, n, seed, 1.0) if f is not None]
+
+    low, high = math.log(0.25), math.log(4.0)
+    for _ in range(steps):
+        middle = (low + high) / 2
+        found = widths(with_targets(size_m=_scaled(t.size_m, math.exp(middle))))
+        if found and float(np.median(found)) > t.size_m.value:
+            high = middle
+        else:
+            low = middle
+    factor = math.exp((low + high) / 2)
+    calibration = with_targets(size_m=_scaled(t.size_m, factor))
+    with_all = _sim_shadow_targets(calibration, chain, n, seed, 1.0)
+    rate_all = float(np.mean([f is not None for f in with_all]))
+    rate_none = float(np.mean([f is not None for f in _sim_shadow_targets(calibration, chain, n, seed, 0.0)]))
+    if rate_all > rate_none + 0.05:
+        def share(rate: float) -> float:
+            return float(np.clip((rate - rate_none) / (rate_all - rate_none), 0.0, 1.0))
+        calibration = with_targets(present_fraction=Estimate(share(t.present_fraction.value),
+                                                             share(t.present_fraction.low),
+                                                             share(t.present_fraction.high)))
+    found = [f.highlight for f in with_all if f is not None and math.isfinite(f.highlight)]
+    if found:
+        gamma = float(calibration.effects["gamma_quantization"]["gamma"])
+        gain = t.highlight_gain * (t.highlight.value / float(np.median(found))) ** (1 / gamma)
+        calibration = with_targets(highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3))
+    return calibration
 
 
 def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence[np.ndarray],
@@ -743,12 +814,15 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     ring = effect_in(chain, RingDown)
     say(f"near field: ring-down amplitude {ring.amplitude:.3g}, decay {ring.decay_m:.3g} m, rise {ring.rise_m:.3g} m")
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
-    for _ in range(2):
-        sim_highlight = _sim_highlight(calibration, chain, n, seed)
-        if math.isfinite(sim_highlight) and sim_highlight > 0:
-            gain = calibration.targets.highlight_gain * (targets.highlight.value / sim_highlight) ** (1 / gamma)
-            calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
-                calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
+    if annotations is None:
+        calibration = match_shadow_targets(calibration, chain, config.mounting_frames, seed)
+    else:
+        for _ in range(2):
+            sim_highlight = _sim_highlight(calibration, chain, n, seed)
+            if math.isfinite(sim_highlight) and sim_highlight > 0:
+                gain = calibration.targets.highlight_gain * (targets.highlight.value / sim_highlight) ** (1 / gamma)
+                calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
+                    calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
     say(f"targets: {calibration.targets}")
     mounting_bins = _sim_bins(calibration, config.mounting_frames, seed)
     real_top = float(np.median([top_ratio(i) for i in images]))

@@ -1,0 +1,36 @@
+"""measure.target_shadow: a target is a shadow behind a return, judged against the seabed at the same ranges; the
+seabed's own dark patches and the water above a late onset are not targets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonar_realism.sim import measure
+
+
+def seabed_frame(seed: int = 0) -> np.ndarray:
+    """[400 ranges, 128 beams]: dark water, then a speckled seabed from row 100 whose level falls with range."""
+    rng = np.random.default_rng(seed)
+    rows = np.arange(400)[:, None]
+    level = np.where(rows >= 100, 0.5 * (1.0 - 0.4 * (rows - 100) / 300), 0.01)
+    return (level * rng.exponential(1.0, (400, 128))).astype(np.float32).clip(0, 1)
+
+
+def test_a_shadow_behind_a_return_is_found_where_it_starts() -> None:
+    image = seabed_frame()
+    image[180:188, 50:80] = 1.0  # the target's return
+    image[188:, 52:78] *= 0.35  # its shadow: grey, not black
+    found = measure.target_shadow(image)
+    assert found is not None
+    assert 50 <= found.first_beam <= 56 and 18 <= found.width_beams <= 28
+    assert found.start_row == pytest.approx(188, abs=12)
+
+
+def test_a_dark_patch_without_a_return_and_a_late_onset_are_not_targets() -> None:
+    patch = seabed_frame(1)
+    patch[200:, 50:80] *= 0.35  # as dark as a shadow, but nothing lit ahead of it
+    assert measure.target_shadow(patch) is None
+    late = seabed_frame(2)
+    late[100:160, 40:80] = 0.01  # the seabed begins 60 rows later in these beams
+    assert measure.target_shadow(late) is None
