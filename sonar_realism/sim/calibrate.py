@@ -13,7 +13,9 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    lands on the real one (the same detector on both);
 3. the seabed: its roughness (`_match_relief`: no more relief shadow than the recording's dark seabed allows),
    then patch contrast, correlation length and dark share of the mean level, matched by simulation;
-   targets: how often a long shadow shows, its width (the target's size) and where it starts; or, with
+   targets: how often a shadow shows behind a return, its width (the target's size) and where it starts, then
+   (under the final chain) the share, size and return gain that make the same detector find the same in
+   simulation (`match_shadow_targets`: it misses targets and takes some seabed for one); or, with
    `--targets-from`, the recording's own annotations (sim/annotations.py: YOLO boxes or class-id masks): how
    many frames show a target, how many each shows, their width across the fan, range and return;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
