@@ -27,7 +27,7 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
    noise floor (the TVG noise amplitude whose share of black pixels is the recording's) and the residual
    range/bearing gain; then the export knee (`match_export_knee`); last, with `learned`, the generator again on
-   the levels so settled;
+   the levels so settled, and the noise floor again under it;
 7. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
    short local search from the fit), 5th-95th percentiles.
 """
