@@ -189,7 +189,8 @@ def test_two_sample_figures_do_not_depend_on_the_thread_count() -> None:
     one. Both tests now train on one thread and give the caller's thread count back, even after an error."""
     import torch
 
-    from sonar_realism.evaluate.two_sample import TextureTestConfig, one_thread, texture_two_sample_test
+    from sonar_realism.evaluate.two_sample import TextureTestConfig, texture_two_sample_test
+    from sonar_realism.models.device import one_thread
 
     rng = np.random.default_rng(3)
     real = [rng.gamma(1.0, 1.0, (64, 64)).astype(np.float32) for _ in range(12)]

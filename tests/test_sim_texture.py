@@ -139,6 +139,18 @@ def learned(texture) -> LearnedSensorTexture:
     return fit_learned_texture(grainy_frames(), levels, seed=0, steps=3)
 
 
+def test_the_learned_texture_is_the_same_on_any_thread_count(texture, learned) -> None:
+    calibration = dataclasses.replace(truth(), texture=texture)
+    levels = texture_levels(calibration, calibrated_chain(calibration, "all"), 2, seed=0)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2 if threads == 1 else 1)
+        again = fit_learned_texture(grainy_frames(), levels, seed=0, steps=3)
+    finally:
+        torch.set_num_threads(threads)
+    assert again.safetensors_base64 == learned.safetensors_base64 and torch.get_num_threads() == threads
+
+
 def test_texture_levels_are_the_smooth_level_each_simulated_frame_is_textured_on(texture) -> None:
     calibration = dataclasses.replace(truth(), texture=texture)
     chain = calibrated_chain(calibration, "all")

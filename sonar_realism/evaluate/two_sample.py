@@ -15,14 +15,13 @@ real: label-free, chance stays 0.5), and the AUC counts only pairs within a fold
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
 from sonar_realism.errors import ConfigError
+from sonar_realism.models.device import one_thread
 from sonar_realism.models.realism_cnn import RealismCNNConfig, realism_scores, train_classifier
 
 # A narrower net than the paper's: it is retrained per fold and per method, on tens of images.
@@ -74,20 +73,6 @@ def _held_out_result(folds: list[_FoldScores]) -> TwoSampleResult:
     balanced = 0.5 * (hits_real / n_real + hits_generated / n_generated)
     return TwoSampleResult(accuracy=float(balanced), auc=ordered_pairs / pairs, n_real=n_real,
                            n_generated=n_generated)
-
-
-@contextmanager
-def one_thread() -> Iterator[None]:
-    """torch on one thread inside, the caller's count restored after. torch's CPU kernels split their sums by
-    thread, so the same inputs and seed trained another classifier on another thread count: one texture test read
-    0.92 on two threads and 0.99 on one (2026-11-24). On one thread a test's figure is the machine's, not its
-    load's or its settings'."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _folds(n: int, k: int) -> list[np.ndarray]:

@@ -1,8 +1,11 @@
-"""The torch device a `--device` / `device=` setting names, checked once for training and sampling alike."""
+"""The torch device a `--device` / `device=` setting names, checked once for training and sampling alike, and the
+CPU thread count for results that must not depend on it."""
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import torch
 
@@ -24,3 +27,17 @@ def pick_device(name: str) -> torch.device:
     if match.group(1) is not None and int(match.group(1)) >= torch.cuda.device_count():
         raise ConfigError(f"device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     return torch.device(name)
+
+
+@contextmanager
+def one_thread() -> Iterator[None]:
+    """torch on one thread inside, the caller's count restored after. torch's CPU kernels split their sums by
+    thread, so the same inputs and seed trained another model on another thread count: one texture test read
+    0.92 on two threads and 0.99 on one, and two calibrations of one recording differed as much as any change
+    measured on them (2026-11-24). On one thread a result is the machine's, not its load's or its settings'."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)

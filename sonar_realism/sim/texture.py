@@ -126,13 +126,18 @@ def fit_learned_texture(images: list[np.ndarray], draw_on: list[np.ndarray], see
     """Train the texture generator on the simulator's local mean levels `draw_on` (full-scale units, what
     `apply_texture` draws on: `sim/calibrated.texture_levels`) against real frames scaled to their maximum, the
     same frames `fit_texture` uses, unpaired (models/learned_texture.py)."""
+    import torch
     from safetensors.torch import save
 
+    from sonar_realism.models.device import one_thread
     from sonar_realism.models.learned_texture import LearnedTexture, TextureFitConfig
 
     schedule = TextureFitConfig(steps=steps)
-    module = LearnedTexture()
-    record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress, draw_on=draw_on)
+    # the same generator from the same seed, whatever ran before it and on any thread count
+    with one_thread():
+        torch.manual_seed(seed)
+        module = LearnedTexture()
+        record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress, draw_on=draw_on)
     encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
     return LearnedSensorTexture(encoded, record.steps, round(record.critic_loss, 4))
 
