@@ -137,7 +137,7 @@ class CalibrateConfig:
     # "learned": fit the recording's own speckle (sim/texture.py), then train a texture generator on the simulated
     # levels against the recording and draw it in place of the catalogue's speckle (Oculus, held out: texture
     # two-sample test 0.92 against the fitted speckle's 0.98 in the same run, docs/RESULTS.md, #11; two fits of
-    # `learned_steps`, about 9 minutes on 2 cores); "speckle": draw the fitted speckle; "none": the catalogue's
+    # `learned_steps`, about 12 minutes on one thread); "speckle": draw the fitted speckle; "none": the catalogue's
     texture: str = "learned"
     learned_steps: int = DEFAULT_LEARNED_STEPS
 
@@ -991,7 +991,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--texture", choices=TEXTURES, default=CalibrateConfig.texture,
                         help="the simulated texture. learned (default): a generator trained on the simulated "
-                             "levels against the recording (about 9 minutes on 2 cores); speckle: the recording's "
+                             "levels against the recording (about 12 minutes, one thread); speckle: the recording's "
                              "own speckle fitted; none: the catalogue's speckle")
     parser.add_argument("--targets-from", action="append", metavar="FOLDER",
                         help="the recording's object annotations, one file per frame named like it: YOLO box files "
