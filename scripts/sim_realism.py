@@ -167,9 +167,10 @@ def main() -> int:
         print(f"seed {seed}: sim {per_seed['calibrated_sim'][-1]}, real {per_seed['real_fit_recording'][-1]}",
               file=sys.stderr)
         if seed == args.seeds[0]:
-            results["calibrated_sim"]["statistics"] = compare(statistics(scaled(sim)), real_stats)
+            sim_stats = statistics(scaled(sim))
+            results["calibrated_sim"]["statistics"] = compare(sim_stats, real_stats)
             results["real_fit_recording"]["statistics"] = compare(statistics(scaled(yardstick)), real_stats)
-            results["calibrated_sim"]["near_zero"] = statistics(scaled(sim))["near_zero"]
+            results["calibrated_sim"]["near_zero"] = sim_stats["near_zero"]
             results["calibrated_sim"]["targets"] = object_statistics(sim, [mask_objects(m) for _, m in pairs])
     for name, runs in per_seed.items():
         results[name]["classifiers"] = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}

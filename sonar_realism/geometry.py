@@ -105,15 +105,14 @@ def _fractional_index(values: np.ndarray, table: np.ndarray) -> np.ndarray:
 def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, nearest: bool = False) -> np.ndarray:
     """cv2.remap over the last two axes of `image`, for every dtype SonarImage allows (`nearest`: labels, which
     must not blend)."""
-    if nearest:
-        return cv2.remap(image, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+    interpolation = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
     if image.ndim == 3:
-        return np.stack([_remap(plane, map_x, map_y) for plane in image])
+        return np.stack([_remap(plane, map_x, map_y, nearest) for plane in image])
     if image.dtype == np.uint32:
         # cv2 has no 32-bit unsigned remap; float64 holds every uint32 exactly.
-        out = cv2.remap(image.astype(np.float64), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        out = cv2.remap(image.astype(np.float64), map_x, map_y, interpolation, borderMode=cv2.BORDER_CONSTANT)
         return np.clip(np.rint(out), 0, np.iinfo(np.uint32).max).astype(np.uint32)
-    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return cv2.remap(image, map_x, map_y, interpolation, borderMode=cv2.BORDER_CONSTANT)
 
 
 def _axes_key(frame: SonarImage) -> tuple[bytes, bytes]:

@@ -102,6 +102,18 @@ def _round_to(value: float, step: float) -> float:
     return round(value / step) * step
 
 
+def fan_layout_of(frame: SonarImage) -> FanLayout | None:
+    """The Cartesian layout a frame read from a fan image came from (the meta `fan_image_to_frame` writes), or None
+    for polar frames: annotations drawn on that image map onto the frame through it."""
+    meta = frame.meta
+    if meta.get("converted_from") != "fan":
+        return None
+    width, height = meta["fan_image_px"]
+    apex_x, apex_y = meta["fan_apex_px"]
+    return FanLayout(int(width), int(height), float(apex_x), float(apex_y), float(meta["fan_px_per_m"]),
+                     bool(meta["fan_range_up"]))
+
+
 def fan_image_to_frame(image: np.ndarray, path: Path, sidecar: ImageSidecar | None, sidecar_source: str,
                        seq: int, meta: dict[str, Any], detected: DetectedFan | None) -> SonarImage:
     """Polar frame of a fan image, geometry from the sidecar where given and measured (`detected`,

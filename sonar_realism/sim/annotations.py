@@ -28,7 +28,8 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
-from sonar_realism.geometry import FanLayout, fan_to_polar
+from sonar_realism.geometry import fan_to_polar
+from sonar_realism.io.fan import fan_layout_of
 from sonar_realism.io.yolo import read_yolo_labels
 from sonar_realism.sim.measure import seabed_rows
 
@@ -187,17 +188,6 @@ def _frame_objects(path: Path, frame: SonarImage) -> list[AnnotatedObject]:
         raise FormatError(str(path), "mask", f"{image.shape[1]}x{image.shape[0]} px, but its frame's image is "
                                              f"{width}x{height}")
     return _regions(polar(image.astype(np.int32)))
-
-
-def fan_layout_of(frame: SonarImage) -> FanLayout | None:
-    """The Cartesian layout a frame read from a fan image came from (io/fan.py's meta), or None for polar frames."""
-    meta = frame.meta
-    if meta.get("converted_from") != "fan":
-        return None
-    width, height = meta["fan_image_px"]
-    apex_x, apex_y = meta["fan_apex_px"]
-    return FanLayout(int(width), int(height), float(apex_x), float(apex_y), float(meta["fan_px_per_m"]),
-                     bool(meta["fan_range_up"]))
 
 
 def _regions(classes: np.ndarray) -> list[AnnotatedObject]:

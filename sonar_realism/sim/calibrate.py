@@ -686,11 +686,19 @@ def match_shadow_targets(calibration: Calibration, chain: Sequence[Effect], n: i
                                                              share(t.present_fraction.low),
                                                              share(t.present_fraction.high)))
     found = [f.highlight for f in with_all if f is not None and math.isfinite(f.highlight)]
-    if found:
-        gamma = float(calibration.effects["gamma_quantization"]["gamma"])
-        gain = t.highlight_gain * (t.highlight.value / float(np.median(found))) ** (1 / gamma)
-        calibration = with_targets(highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3))
-    return calibration
+    return _with_highlight_matched(calibration, float(np.median(found)) if found else math.nan)
+
+
+def _with_highlight_matched(calibration: Calibration, simulated: float) -> Calibration:
+    """The targets' return gain moved so that their `simulated` return (over the seabed median, as measured on
+    the recording) becomes the recording's `targets.highlight`, through the export's gamma (kept in 1..30)."""
+    t = calibration.targets
+    if not (math.isfinite(simulated) and simulated > 0):
+        return calibration
+    gamma = float(calibration.effects["gamma_quantization"]["gamma"])
+    gain = t.highlight_gain * (t.highlight.value / simulated) ** (1 / gamma)
+    return dataclasses.replace(calibration, targets=dataclasses.replace(
+        t, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
 
 
 def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence[np.ndarray],
@@ -820,11 +828,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
         calibration = match_shadow_targets(calibration, chain, config.mounting_frames, seed)
     else:
         for _ in range(2):
-            sim_highlight = _sim_highlight(calibration, chain, n, seed)
-            if math.isfinite(sim_highlight) and sim_highlight > 0:
-                gain = calibration.targets.highlight_gain * (targets.highlight.value / sim_highlight) ** (1 / gamma)
-                calibration = dataclasses.replace(calibration, targets=dataclasses.replace(
-                    calibration.targets, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
+            calibration = _with_highlight_matched(calibration, _sim_highlight(calibration, chain, n, seed))
     say(f"targets: {calibration.targets}")
     mounting_bins = _sim_bins(calibration, config.mounting_frames, seed)
     real_top = float(np.median([top_ratio(i) for i in images]))
