@@ -45,6 +45,7 @@ from sonar_realism.diagnose.heldout import (
     find_implementation,
 )
 from sonar_realism.diagnose.scene_terms import SceneStart
+from sonar_realism.diagnose.second_blind_forms import SECOND_BLIND
 from sonar_realism.diagnose.tuning_forms import TUNING
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_to_grid
@@ -58,8 +59,10 @@ SIM_SEED, REAL_SEED = 11, 22
 QUICK_CONFIG = DiagnoseConfig(fit_frames=6, eval_frames=16, real_frames=16, bootstrap=50)
 FULL_SETTINGS = "default:40:inside+wide,organic:40,calibrated:40,default:500:inside:first"
 QUICK_SETTINGS = "default:24"
-# the validation sets `--half` picks: never tuned against, tuned against, written blind later (a fresh held-out)
-HALVES: dict[str, dict[str, Implementation]] = {"held-out": IMPLEMENTATIONS, "tuning": TUNING, "blind": BLIND}
+# the validation sets `--half` picks: never tuned against, tuned against, written blind later (a fresh held-out),
+# and a second set written blind after the third had been run (another fresh held-out)
+HALVES: dict[str, dict[str, Implementation]] = {"held-out": IMPLEMENTATIONS, "tuning": TUNING, "blind": BLIND,
+                                                "blind2": SECOND_BLIND}
 
 # Detection-limit sweeps: implementation, the parameter swept (weak to strong), the values, the others held.
 LIMITS: dict[str, tuple[str, tuple[float, ...], dict[str, float]]] = {

@@ -116,9 +116,9 @@ class Alternative:
 @dataclass(frozen=True)
 class Step:
     """One step of the selection: `action` is "start" (nothing applied), "add", "refit" (pruning refitted the
-    whole set, which fitted better), "remove" (pruned), "unconfirmed" (removed: the real frames lack its
-    signature, see Unconfirmed) or "gain_stand_in" (removed: a gain pattern does its job); `gap` the held-out gap
-    after it; `alternatives` the candidates an "add" step chose among."""
+    whole set, which fitted better), "remove" (pruned), "unconfirmed" (removed, or passed over for its step's
+    runner-up: the real frames lack its signature, see Unconfirmed) or "gain_stand_in" (removed: a gain pattern
+    does its job); `gap` the held-out gap after it; `alternatives` the candidates an "add" step chose among."""
 
     action: Literal["start", "add", "refit", "remove", "unconfirmed", "gain_stand_in"]
     effect: str
@@ -220,8 +220,11 @@ class Residual:
 class Unconfirmed:
     """A selected effect dropped because the real frames lack its signature (`signature`: what was looked for
     and what was measured): a multipath whose ghost copy of each frame's scene is not there, an interference whose
-    bright rows sit at the same ranges in every frame (a fixed band). What it closed of the gap is a difference
-    of the world, the set-up or an un-catalogued effect, not this effect: it stays residual."""
+    bright rows sit at the same ranges in every frame (a fixed band), sidelobes whose fitted form lifts the dark
+    beams of bright rows where the real frames' are not lifted (a noise floor, a yaw smear). What it closed of the
+    gap is a difference of the world, the set-up or an un-catalogued effect, not this effect. Sidelobes that fail
+    theirs when picked give way to their step's runner-up (`gap_with_effect`: what they would have left;
+    `gap_without`: what the runner-up leaves)."""
 
     effect: str
     params: dict[str, Any]

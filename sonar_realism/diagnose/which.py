@@ -10,10 +10,13 @@ candidate wins is its stability, and a step whose runner-up wins often is report
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
 after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. A
 selected multipath must then show its ghost in the real frames (diagnose/ghost.py), and a selected interference
-arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Last, each selected effect
-must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect whose fitted form does no
-more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue lacks) is not blamed, and its
-part of the gap stays residual, with the pattern's place.
+arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Sidelobes are held to their
+signature while they are picked: fitted at their strongest they stand in for a noise floor or a yaw smear, so
+sidelobes whose fitted form lifts the dark beams of bright rows where the real frames' are not lifted
+(diagnose/leakage.py) give way to the runner-up of their step when it passes the step's tests by itself. Last,
+each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
+whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
+lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from sonar_realism.diagnose.ghost import (
     ghost_lag_peak,
     range_lag_correlation,
 )
+from sonar_realism.diagnose.leakage import LeakageCheck, check_leakage
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     Alternative,
@@ -51,7 +55,7 @@ from sonar_realism.diagnose.scene_terms import SceneTerm, apply_scene_terms, kin
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import Effect, Interference, Multipath, apply_effects, make_effect
+from sonar_realism.sim.effects import BeamSidelobes, Effect, Interference, Multipath, apply_effects, make_effect
 
 # A gain pattern's smooth part has this many degrees of freedom per axis; channels that stand out from it by more
 # than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB) keep their own gain: a stripe is one beam wide.
@@ -452,16 +456,21 @@ class Solo:
     stats: Stats | None
 
 
-def signature_check(effect: Effect, real_images: np.ndarray, sim_images: Callable[[], np.ndarray],
-                    ranges_m: np.ndarray) -> GhostCheck | ArcCheck | None:
+# a step's judged candidate: (held-out gap, the chosen effects refitted around it, it as fitted, its solo, stats)
+Trial = tuple[float, list[Effect], Effect, Solo, Stats | None]
+
+
+def signature_check(effect: Effect, rest: Sequence[Effect], real_images: np.ndarray,
+                    sim_images: Callable[[Sequence[Effect]], np.ndarray], ranges_m: np.ndarray,
+                    ) -> GhostCheck | ArcCheck | None:
     """The test of what `effect` leaves in every frame that nothing else does, on the real held-out frames
-    against the sim's corrected by the other selected effects (`sim_images`, made only for an effect that has a
-    test); None for an effect without one."""
+    against the sim's corrected by the other selected effects `rest` (`sim_images(effects)`: the held-out sim
+    frames corrected by `effects`, made only for an effect that has a test); None for an effect without one."""
     if isinstance(effect, Multipath):
-        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images()),
+        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images(rest)),
                            ghost_lag_bins(effect.ghost_offset_m, ranges_m))
     if isinstance(effect, Interference):
-        return check_arcs(real_images, sim_images())
+        return check_arcs(real_images, sim_images(rest))
     return None
 
 
@@ -516,7 +525,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
 
     The signature checks then drop a selected multipath whose ghost (each frame's own scene again at the fitted
     offset) the real held-out frames do not show (`ghost.check_ghost`) and a selected interference whose bright
-    rows sit at the same ranges in most real frames (`arcs.check_arcs`); both are listed in `unconfirmed`.
+    rows sit at the same ranges in most real frames (`arcs.check_arcs`); both are listed in `unconfirmed`, as are
+    sidelobes that gave way to their step's runner-up (`sidelobes_yield`) when picked.
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
     others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
@@ -536,6 +546,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     # against 0 but not one against the least gain worth naming
     least_gain = c.min_gain * max(gap_before, 1e-12)
     stopped = f"reached max_effects={c.max_effects}"
+    unconfirmed: list[Unconfirmed] = []
 
     def refit(name: str, base: Sequence[Effect], start: Effect) -> Fit:
         # the catalogue's default (a term's calibrated start) is the other start: a fit made while another effect
@@ -562,6 +573,21 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         return bootstrap_gain(worse, better, problem.target, problem.scale, c.bootstrap, c.significance,
                               seed=c.seed + draw)
 
+    def sidelobes_yield(pick: Effect, base: list[Effect], runner_up: list[Trial]
+                        ) -> tuple[Trial, LeakageCheck, tuple[float, float]] | None:
+        """Sidelobes whose fitted form lifts the dark beams of bright rows where the real frames' are not lifted
+        (diagnose/leakage.py) give way to the runner-up of their step if it passes the step's tests by itself.
+        Failing the check is evidence only against a rival that explains the gap too: on a scene whose rows are
+        full of seabed a true sidelobe's lift can be too small to show, and with no rival it is still named."""
+        if (not isinstance(pick, BeamSidelobes) or not runner_up or problem.real_images is None
+                or problem.sim_images is None or current - runner_up[0][0] < least_gain):
+            return None
+        leakage = check_leakage(problem.real_images, problem.sim_images(base), problem.sim_images([*base, pick]))
+        if leakage.confirmed:
+            return None
+        gain, lower = lower_bound(current_stats, runner_up[0][4], 700 + len(chosen))
+        return (runner_up[0], leakage, (gain, lower)) if lower > least_gain else None
+
     while remaining and len(chosen) < c.max_effects:
         if current <= c.min_gain * gap_before:
             stopped = f"the gap left is below {c.min_gain:.0%} of the gap before (nothing left to explain)"
@@ -580,8 +606,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             frequency = _frequencies([t[4] for t in trials], problem, c, seed=c.seed + 600 + len(chosen))
             candidates = [(t[3].ranked.name, t[0], float(f), t[4]) for t, f in zip(trials, frequency, strict=True)]
         else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
-            top = remaining[0]
-            trials = [(top.ranked.gap_after, [], top.effect, top, top.stats)]
+            trials = [(solo.ranked.gap_after, [], solo.effect, solo, solo.stats) for solo in remaining[:2]]
             candidates = [(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency, s.stats) for s in remaining]
         best_gap, best_base, best_effect, best_solo, best_stats = min(trials, key=lambda t: t[0])
         best_name = best_solo.ranked.name
@@ -589,6 +614,17 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             stopped = f"no remaining effect lowers the held-out gap by {c.min_gain:.0%} of the gap before"
             break
         gain, lower = lower_bound(current_stats, best_stats, len(chosen))
+        yielded = sidelobes_yield(best_effect, best_base, sorted(trials, key=lambda t: t[0])[1:2])
+        if yielded is not None:
+            rival, leakage, (gain, lower) = yielded
+            unconfirmed.append(Unconfirmed(best_name, best_effect.params(), leakage.describe(), best_gap, rival[0]))
+            path.append(Step("unconfirmed", best_name, current))
+            remaining = [solo for solo in remaining if solo.ranked.name != best_name]
+            if progress:
+                progress(f"{best_name}: the real frames lack its leakage ({leakage.describe()}): "
+                         f"{rival[3].ranked.name} named instead")
+            best_gap, best_base, best_effect, best_solo, best_stats = rival
+            best_name = best_solo.ranked.name
         if lower <= least_gain:
             stopped = (f"the best remaining effect ({best_name}) lowers the held-out gap by {gain:.3g}, not "
                        f"significantly by {c.min_gain:.0%} of the gap before (one-sided {c.significance:.0%} lower "
@@ -610,7 +646,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
                      f"{c.significance:.0%} lower bound {lower:.3g})")
     else:
         if not remaining:
-            stopped = "every catalogued effect selected"
+            stopped = "every catalogued effect selected or passed over"
 
     while c.prune and len(chosen) >= 2:
         # the candidate for removal: the effect whose absence hurts least as the others stand
@@ -639,11 +675,9 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     # an effect with a signature must show it in the real frames: a multipath its ghost (each frame's own scene
     # again at the fitted offset), an interference arcs that move; what it closed without is another world's
     # difference (another seabed) or a fixed band that its added power mimics
-    unconfirmed = []
     for effect in list(chosen) if problem.real_images is not None and problem.sim_images is not None else []:
         rest = [e for e in chosen if e is not effect]
-        check = signature_check(effect, problem.real_images, lambda rest=rest: problem.sim_images(rest),
-                                problem.ranges_m)
+        check = signature_check(effect, rest, problem.real_images, problem.sim_images, problem.ranges_m)
         if check is None or check.confirmed:
             continue
         rest = refit_each(rest)

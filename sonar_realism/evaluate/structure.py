@@ -12,6 +12,8 @@ these two numbers catch that. Both work on model grids (float32 [rows, cols] in 
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -78,7 +80,7 @@ def mask_iou(mask: np.ndarray, output: np.ndarray, reference: np.ndarray | None 
            slice(max(0, cols.min() - grow_cols), cols.max() + grow_cols + 1))
     truth = truth[box]
     standout = _log_contrast(output, box)
-    polarity = _log_contrast(reference if reference is not None else output, box)[truth].mean()
+    polarity = (standout if reference is None else _log_contrast(reference, box))[truth].mean()
     score = (standout if polarity >= 0 else -standout).ravel()
     predicted = np.zeros(score.size, bool)
     predicted[np.argpartition(-score, area - 1)[:area]] = True
@@ -87,8 +89,14 @@ def mask_iou(mask: np.ndarray, output: np.ndarray, reference: np.ndarray | None 
 
 
 def _log_contrast(image: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
-    """Log level of the speckle-blurred image over the median of `box`, inside `box` (one 8-bit step of floor)."""
-    smooth = cv2.GaussianBlur(image.astype(np.float32), (0, 0), SPECKLE_BLUR_SIGMA)[box]
+    """Log level of the speckle-blurred image over the median of `box`, inside `box` (one 8-bit step of floor).
+    Only the box and the blur's reach around it are blurred: the same values as blurring the whole frame."""
+    reach = math.ceil(4 * SPECKLE_BLUR_SIGMA) + 1  # OpenCV's kernel for float images reaches 4 sigma
+    rows, cols = box
+    top, left = max(0, rows.start - reach), max(0, cols.start - reach)
+    crop = image[top:rows.stop + reach, left:cols.stop + reach].astype(np.float32)
+    smooth = cv2.GaussianBlur(crop, (0, 0), SPECKLE_BLUR_SIGMA)[rows.start - top:rows.stop - top,
+                                                                 cols.start - left:cols.stop - left]
     return np.log(smooth + 1 / 255) - np.log(float(np.median(smooth)) + 1 / 255)
 
 

@@ -12,7 +12,9 @@ file. A second *tuning* set of the same kind (`sonar_realism/diagnose/tuning_for
 its own registry, `TUNING`: the diagnosis may be tuned against it, and adding to it never changes the held-out
 half's draws. A third set (`sonar_realism/diagnose/blind_forms.py`, `@blind_form`, registry `BLIND`) was written
 later by other hands that read neither the catalogue's code nor the diagnosis': a fresh held-out measurement
-after the first half had been looked at over several rounds.
+after the first half had been looked at over several rounds. A fourth (`sonar_realism/diagnose/second_blind_forms.py`,
+`@second_blind_form`, registry `SECOND_BLIND`) was written blind in the same way after the third had been run: forms
+nobody had yet measured the diagnosis on.
 
 `family` is a catalogue effect name, or UNCATALOGUED for effects the catalogue has no stage for
 (their right answer is "residual, at these places": `place` says where).
@@ -94,7 +96,8 @@ class Implementation:
 IMPLEMENTATIONS: dict[str, Implementation] = {}  # the held-out half
 TUNING: dict[str, Implementation] = {}  # a second tuning set (beside diagnose/validation.py's alternatives)
 BLIND: dict[str, Implementation] = {}  # a third set, written blind to the catalogue's and the diagnosis' code
-REGISTRIES = (IMPLEMENTATIONS, TUNING, BLIND)
+SECOND_BLIND: dict[str, Implementation] = {}  # a fourth set, written blind like the third, after the third had been run
+REGISTRIES = (IMPLEMENTATIONS, TUNING, BLIND, SECOND_BLIND)
 
 
 def held_out(family: str, form: str, place: Callable[[SonarImage, dict[str, float]], Place] | None = None,
@@ -115,6 +118,12 @@ def blind_form(family: str, form: str, place: Callable[[SonarImage, dict[str, fl
     return _register(BLIND, family, form, place, strength, params)
 
 
+def second_blind_form(family: str, form: str, place: Callable[[SonarImage, dict[str, float]], Place] | None = None,
+                      strength: str = "", **params: Param) -> Callable[[Apply], Apply]:
+    """Register the decorated function as second blind implementation `family/form` (the fourth set)."""
+    return _register(SECOND_BLIND, family, form, place, strength, params)
+
+
 def _register(registry: dict[str, Implementation], family: str, form: str,
               place: Callable[[SonarImage, dict[str, float]], Place] | None, strength: str,
               params: dict[str, Param]) -> Callable[[Apply], Apply]:
@@ -133,7 +142,7 @@ def _register(registry: dict[str, Implementation], family: str, form: str,
 
 
 def find_implementation(name: str) -> Implementation:
-    """Validation implementation `name` of any of the three sets (ConfigError naming the known ones if none)."""
+    """Validation implementation `name` of any set (ConfigError naming the known ones if none)."""
     entry = next((known[name] for known in REGISTRIES if name in known), None)
     if entry is None:
         known_names = sorted(n for known in REGISTRIES for n in known)
@@ -142,7 +151,7 @@ def find_implementation(name: str) -> Implementation:
 
 
 def apply_held_out(frames: list[SonarImage], name: str, params: dict[str, float], seed: int) -> list[SonarImage]:
-    """The "real" frames: `frames` with validation implementation `name` (of any of the three sets) applied
+    """The "real" frames: `frames` with validation implementation `name` (of any set) applied
     (per-frame draws from `seed`)."""
     entry = find_implementation(name)
     out = []
