@@ -6,7 +6,7 @@ whatever the row holds, and a yaw smear spreads a return over a few beams only, 
 fitted at their strongest (a -10 dB skirt, a -15 dB cross-talk) the catalogue's sidelobes can still stand in for
 either in the statistics. So the check compares the real frames' row-coupled lift (`row_coupled_lift`) with the
 lift the fitted effect itself puts on the sim's frames: a fitted form that predicts a clear lift the real frames do
-not show is not what is in them, and what it closed stays residual (or goes to the next candidate).
+not show is not what is in them, and the sidelobes give way to their step's runner-up (diagnose/which.py).
 """
 
 from __future__ import annotations

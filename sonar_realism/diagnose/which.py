@@ -460,17 +460,16 @@ class Solo:
 Trial = tuple[float, list[Effect], Effect, Solo, Stats | None]
 
 
-def signature_check(effect: Effect, rest: Sequence[Effect], real_images: np.ndarray,
-                    sim_images: Callable[[Sequence[Effect]], np.ndarray], ranges_m: np.ndarray,
-                    ) -> GhostCheck | ArcCheck | None:
+def signature_check(effect: Effect, real_images: np.ndarray, sim_images: Callable[[], np.ndarray],
+                    ranges_m: np.ndarray) -> GhostCheck | ArcCheck | None:
     """The test of what `effect` leaves in every frame that nothing else does, on the real held-out frames
-    against the sim's corrected by the other selected effects `rest` (`sim_images(effects)`: the held-out sim
-    frames corrected by `effects`, made only for an effect that has a test); None for an effect without one."""
+    against the sim's corrected by the other selected effects (`sim_images`, made only for an effect that has a
+    test); None for an effect without one."""
     if isinstance(effect, Multipath):
-        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images(rest)),
+        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images()),
                            ghost_lag_bins(effect.ghost_offset_m, ranges_m))
     if isinstance(effect, Interference):
-        return check_arcs(real_images, sim_images(rest))
+        return check_arcs(real_images, sim_images())
     return None
 
 
@@ -677,7 +676,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     # difference (another seabed) or a fixed band that its added power mimics
     for effect in list(chosen) if problem.real_images is not None and problem.sim_images is not None else []:
         rest = [e for e in chosen if e is not effect]
-        check = signature_check(effect, rest, problem.real_images, problem.sim_images, problem.ranges_m)
+        check = signature_check(effect, problem.real_images, lambda rest=rest: problem.sim_images(rest),
+                                problem.ranges_m)
         if check is None or check.confirmed:
             continue
         rest = refit_each(rest)
