@@ -9,54 +9,27 @@ import numpy as np
 import pytest
 
 from sonar_realism.diagnose.blind_forms import BLIND, _ring_extent_m, _stepped_gain_db
-from sonar_realism.diagnose.heldout import UNCATALOGUED, apply_held_out
+from sonar_realism.diagnose.heldout import UNCATALOGUED
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.effects import EFFECTS
+from tests.validation_forms import (
+    FAMILIES,
+    apply_form,
+    check_output_contract,
+    make_frame,
+    place_covers,
+    point_frame,
+)
 
-FAMILIES = ("elevation_spread", "multipath", "speckle", "motion_blur", "beam_sidelobes", "range_blur", "tvg_noise",
-            "interference", "ring_down", "gamma_quantization")
 NAMES = sorted(BLIND)
-META = {"sonar_altitude_m": 1.5, "sonar_tilt_rad": math.radians(10.0)}
-
-
-def make_frame(intensity: np.ndarray | None = None, n_ranges: int = 400, n_beams: int = 128, step: float = 0.02,
-               seq: int = 0) -> SonarImage:
-    """Sine-spaced beams over 130 degrees, `step` m bins from 0.3 m; by default a dark water column over a
-    textured seabed from 3 m with one bright target."""
-    if intensity is not None:
-        n_ranges, n_beams = intensity.shape
-    ranges = 0.3 + step * np.arange(n_ranges)
-    limit = math.sin(math.radians(65.0))
-    azimuths = np.arcsin(np.linspace(-limit, limit, n_beams))
-    if intensity is None:
-        rng = np.random.default_rng(42)
-        intensity = np.zeros((n_ranges, n_beams), np.float32)
-        seabed = ranges >= 3.0
-        intensity[seabed] = 0.25 * rng.gamma(4.0, 0.25, (int(seabed.sum()), n_beams))
-        intensity[n_ranges * 3 // 4, n_beams // 3] = 0.95
-        intensity = np.clip(intensity, 0.0, 1.0).astype(np.float32)
-    return SonarImage(intensity.astype(np.float32), ranges, azimuths, seq=seq, frame_id="sonar", stamp_ns=0,
-                      intensity_scale=1.0, meta=dict(META))
-
-
-def point_frame(row: int, col: int, value: float = 0.8, **kwargs) -> SonarImage:
-    n_ranges, n_beams = kwargs.get("n_ranges", 400), kwargs.get("n_beams", 128)
-    image = np.zeros((n_ranges, n_beams), np.float32)
-    image[row, col] = value
-    return make_frame(image, **kwargs)
 
 
 def run(name: str, frame: SonarImage, p: dict[str, float], ping: int = 1, instrument: int = 2) -> np.ndarray:
-    return BLIND[name].apply(frame.normalized(), frame, p, np.random.default_rng(ping),
-                             np.random.default_rng(instrument))
+    return apply_form(BLIND[name], frame, p, ping, instrument)
 
 
 def inside(name: str, seed: int = 0) -> dict[str, float]:
     return BLIND[name].draw("inside", np.random.default_rng(seed))
-
-
-def as_amplitude(y: np.ndarray) -> np.ndarray:
-    return y.astype(np.float64) / 255.0 if y.dtype == np.uint8 else y.astype(np.float64)
 
 
 # --- registry and draws ----------------------------------------------------------------------------------------------
@@ -89,40 +62,20 @@ def test_draw_ranges_nest_and_stay_inside_the_catalogue_bounds(name: str) -> Non
 
 @pytest.mark.parametrize("name", NAMES)
 def test_output_contract_determinism_and_change(name: str) -> None:
-    frame = make_frame()
-    x = frame.normalized()
-    draws = [inside(name, seed) for seed in (0, 1)] + [BLIND[name].draw("wide", np.random.default_rng(5))]
-    for p in draws:
-        y = run(name, frame, p)
-        assert y.shape == x.shape
-        assert y.dtype == (np.uint8 if BLIND[name].family == "gamma_quantization" else np.float32)
-        assert np.all(np.isfinite(y)) and np.all(y >= 0)
-        np.testing.assert_array_equal(y, run(name, frame, p))
-    changed = np.abs(as_amplitude(run(name, frame, draws[0])) - x)
-    assert changed.max() > 0.02
-    frames = apply_held_out([make_frame(seq=0), make_frame(seq=1)], name, draws[0], seed=9)
-    assert len(frames) == 2 and frames[0].meta["held_out"] == name
+    check_output_contract(BLIND[name])
 
 
 @pytest.mark.parametrize("name", [n for n in NAMES if BLIND[n].family == UNCATALOGUED])
 @pytest.mark.parametrize("mode", ["inside", "wide"])
 def test_uncatalogued_place_covers_every_changed_pixel(name: str, mode: str) -> None:
     frame = make_frame(np.full((400, 128), 0.3, np.float32))
-    bearings, ranges = np.degrees(frame.azimuths_rad), frame.ranges_m
     rng = np.random.default_rng(11)
     for _ in range(6):
         p = BLIND[name].draw(mode, rng)
         changed = np.abs(run(name, frame, p) - frame.normalized()) > 1e-6
         assert changed.any()
         place = BLIND[name].place(frame, p)
-        rows, cols = np.nonzero(changed)
-        in_range = np.zeros(rows.size, bool)
-        for lo, hi in place.range_m:
-            in_range |= (ranges[rows] >= lo - 1e-9) & (ranges[rows] <= hi + 1e-9)
-        in_bearing = np.zeros(cols.size, bool)
-        for lo, hi in place.bearing_deg:
-            in_bearing |= (bearings[cols] >= lo - 1e-9) & (bearings[cols] <= hi + 1e-9)
-        assert in_range.all() and in_bearing.all()
+        assert place_covers(frame, changed, place.range_m, place.bearing_deg)
 
 
 # --- each form's physics ---------------------------------------------------------------------------------------------
