@@ -9,7 +9,7 @@ import pytest
 
 from sonar_realism.cli import main
 from sonar_realism.diagnose import DiagnoseConfig, diagnose, load_diagnosis
-from sonar_realism.diagnose.arcs import check_arcs
+from sonar_realism.diagnose.arcs import LINE_DB, check_arcs, find_lines, interference_from_lines, line_strength
 from sonar_realism.diagnose.config import SearchConfig
 from sonar_realism.diagnose.diagnosis import _ambiguous_groups, split_indices
 from sonar_realism.diagnose.gap import (
@@ -23,7 +23,7 @@ from sonar_realism.diagnose.gap import (
 )
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.leakage import check_leakage
-from sonar_realism.diagnose.result import Alternative, RankedEffect, Step
+from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, write_diagnosis
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import (
     SelectionProblem,
@@ -566,3 +566,45 @@ def test_arcs_that_move_are_confirmed_and_a_band_at_fixed_rows_is_not():
     assert check_arcs(moving, sim).confirmed
     fixed = check_arcs(band, sim)
     assert not fixed.confirmed and fixed.real_share == 1.0
+
+
+def with_lines(frames: np.ndarray, every: int, level: float, seed: int, beams: slice = slice(None)) -> np.ndarray:
+    """Every `every`-th frame gains a two-row line of amplitude `level` over `beams`, at a new range each time."""
+    out = frames.copy()
+    rng = np.random.default_rng(seed)
+    for frame in out[::every]:
+        row = int(rng.integers(20, 110))
+        frame[row:row + 2, beams] = np.sqrt(frame[row:row + 2, beams] ** 2 + level ** 2)
+    return out
+
+
+def test_lines_that_move_are_found_and_neither_a_fixed_band_nor_speckle_nor_a_compact_echo_is():
+    sim, real = speckled(30, seed=1) * 0.2, speckled(30, seed=2) * 0.2
+    lined = with_lines(real, every=2, level=0.5, seed=3)
+    assert (line_strength(lined)[::2] >= LINE_DB).all() and (line_strength(real) < LINE_DB).all()
+    find = find_lines(lined, sim)
+    assert find.found and find.real_lit == 15 and find.sim_lit == 0
+    band = real.copy()
+    band[:, 60:62] = np.sqrt(band[:, 60:62] ** 2 + 0.25)  # a housing reflection: the same rows in every frame
+    echoes = with_lines(real, every=2, level=0.9, seed=3, beams=slice(40, 52))  # compact: a target, not a line
+    assert not find_lines(band, sim).found and not find_lines(echoes, sim).found
+    assert not find_lines(with_lines(real, every=15, level=0.5, seed=3), sim).found  # 2 of 30: not significant
+    fitted = interference_from_lines(lined, find)
+    assert fitted.rate_per_ping == pytest.approx(-np.log(0.5), rel=0.01)  # half the pings show one
+    assert fitted.amplitude == pytest.approx(0.5, rel=0.25)
+    assert fitted.floor_db > -3.5  # as bright across the fan as at its peak
+
+
+def test_interference_the_gap_does_not_see_is_found_by_its_lines(tmp_path):
+    sim = sim_frames(16, seed=1)
+    lines = make_effect("interference", rate_per_ping=1.0, amplitude=0.3, floor_db=-10.0, thickness_m=0.1)
+    rng = np.random.default_rng(0)
+    real = [apply_effects(f, [lines], rng) for f in sim_frames(16, seed=2)]
+    config = dataclasses.replace(FAST, effects=("interference", "tvg_noise"))
+    result = diagnose(sim, real, config)
+    assert result.selected == ("interference",)
+    assert [s.action for s in result.selection_path] == ["start", "found"]  # the gap alone named nothing
+    assert result.found[0].params["amplitude"] == pytest.approx(0.3, rel=0.3)
+    assert load_diagnosis(write_diagnosis(result, tmp_path / "diagnosis.json")).found == result.found
+    clean = diagnose(sim, sim_frames(16, seed=2), config)
+    assert "interference" not in clean.selected and clean.found == ()

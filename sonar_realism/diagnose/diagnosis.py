@@ -251,6 +251,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
         seconds=time.perf_counter() - started,
         scene_start=scene,
         unconfirmed=tuple(selection.unconfirmed),
+        found=tuple(selection.found),
         examples=Examples(raw_eval[0], after_images[0], real_hold[0]))
 
 
@@ -262,13 +263,15 @@ def _statistics(images: np.ndarray, config: StatisticsConfig, workers: int) -> d
 
 
 def _selected_effects(selection: Selection, gap_before: float) -> tuple[SelectedEffect, ...]:
-    """Each selected effect with the share of the gap before it closed when added and its step's stability."""
+    """Each selected effect with the share of the gap before it closed when added and its step's stability (NaN
+    for one found by its signature: no rival was weighed against it)."""
     added = {}
     previous = gap_before
     for step in selection.path:
-        if step.action == "add":
-            chosen = next(a for a in step.alternatives if a.effect == step.effect)
-            added[step.effect] = ((previous - step.gap) / gap_before if gap_before > 0 else 0.0, chosen.frequency)
+        if step.action in ("add", "found"):
+            chosen = next((a for a in step.alternatives if a.effect == step.effect), None)
+            added[step.effect] = ((previous - step.gap) / gap_before if gap_before > 0 else 0.0,
+                                  chosen.frequency if chosen else math.nan)
         previous = step.gap
     return tuple(SelectedEffect(e.name, e.params(), *added.get(e.name, (0.0, math.nan)), kind_of(e))
                  for e in selection.effects)

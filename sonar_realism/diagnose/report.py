@@ -139,6 +139,10 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                         f"{u.signature}. What it mimicked is a difference of the scene or the set-up (another "
                         "seabed, other objects) or an effect the catalogue lacks: residual.")
                    for u in d.unconfirmed]
+    found = [Text(f"Found by its signature: **{f.effect}** ({f.signature}). The gap barely sees it (held-out gap "
+                  f"{f.gap_without:.3g} without it, {f.gap_with_effect:.3g} with it): its parameters are read off "
+                  "the lines, not fitted to the gap.")
+             for f in d.found]
     pattern = res.gain_pattern
     gain_text = (f"A fixed gain pattern on top of the selected effects closes a further "
                  f"{100 * pattern.share_of_gap:.0f}% of the gap before (held-out gap {pattern.gap:.3g}); it stands "
@@ -170,7 +174,7 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                  "pattern is not blamed. \"Chosen in resamples\": how often the step's pick was the best candidate "
                  f"over {d.bootstrap_resamples} bootstrap resamples of the held-out frames."),
             selected, *setup, *ambiguous, steps, Text(f"Selection stopped: {d.selection_stopped}."), *unconfirmed,
-            *stand_ins,
+            *found, *stand_ins,
             Figure(figures["curve"], "held-out gap along the selection", width_percent=70)]),
         Section("Residual: what no catalogued effect explains", [
             residual, Text("\n".join(_where_lines(res.where))), *residual_figures]),
@@ -182,7 +186,7 @@ def _params(params: dict[str, Any]) -> str:
 
 
 def _step_label(step: Step) -> str:
-    signs = {"add": "+", "remove": "-", "unconfirmed": "-", "gain_stand_in": "-", "refit": "refit "}
+    signs = {"add": "+", "found": "+", "remove": "-", "unconfirmed": "-", "gain_stand_in": "-", "refit": "refit "}
     return signs.get(step.action, "") + step.effect
 
 

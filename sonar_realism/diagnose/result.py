@@ -117,10 +117,11 @@ class Alternative:
 class Step:
     """One step of the selection: `action` is "start" (nothing applied), "add", "refit" (pruning refitted the
     whole set, which fitted better), "remove" (pruned), "unconfirmed" (removed, or passed over for its step's
-    runner-up: the real frames lack its signature, see Unconfirmed) or "gain_stand_in" (removed: a gain pattern
-    does its job); `gap` the held-out gap after it; `alternatives` the candidates an "add" step chose among."""
+    runner-up: the real frames lack its signature, see Unconfirmed), "gain_stand_in" (removed: a gain pattern
+    does its job) or "found" (added last, by its signature alone, see Found); `gap` the held-out gap after it;
+    `alternatives` the candidates an "add" step chose among."""
 
-    action: Literal["start", "add", "refit", "remove", "unconfirmed", "gain_stand_in"]
+    action: Literal["start", "add", "refit", "remove", "unconfirmed", "gain_stand_in", "found"]
     effect: str
     gap: float
     alternatives: tuple[Alternative, ...] = ()
@@ -234,6 +235,20 @@ class Unconfirmed:
 
 
 @dataclass(frozen=True)
+class Found:
+    """An effect named by its signature alone, which the gap does not see (`signature`: what was counted): an
+    interference whose lines, a few thin arcs in some pings, move the frames' mean statistics by less than the
+    scenes' own differences. Its parameters are read off the signature, not fitted to the gap;
+    `gap_without` / `gap_with_effect`: the held-out gap before and after it was added (they may differ by noise)."""
+
+    effect: str
+    params: dict[str, Any]
+    signature: str
+    gap_without: float
+    gap_with_effect: float
+
+
+@dataclass(frozen=True)
 class Auc:
     """Cross-validated classifier two-sample AUC and its standard error."""
 
@@ -275,7 +290,7 @@ class Diagnosis:
     few held-out frames for the bootstrap to separate anything: no ranking). `scene_start`: where the calibration
     put the real setting, when geometry and scene terms were candidates (None: sensor effects only).
     `unconfirmed`: selected effects dropped because the real frames lack their signature (a multipath without its
-    ghost)."""
+    ghost); `found`: effects named by their signature alone (interference lines the gap does not see)."""
 
     verdict: Verdict
     gap_measure: str
@@ -306,6 +321,7 @@ class Diagnosis:
     seconds: float
     scene_start: SceneStart | None = None
     unconfirmed: tuple[Unconfirmed, ...] = ()
+    found: tuple[Found, ...] = ()
     examples: Examples | None = dataclasses.field(default=None, compare=False)
 
     def blamed_on_setup(self) -> tuple[SelectedEffect, ...]:

@@ -16,7 +16,9 @@ sidelobes whose fitted form lifts the dark beams of bright rows where the real f
 (diagnose/leakage.py) give way to the runner-up of their step when it passes the step's tests by itself. Last,
 each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
 whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
-lacks) is not blamed, and its part of the gap stays residual, with the pattern's place.
+lacks) is not blamed, and its part of the gap stays residual, with the pattern's place. Then, last, an interference
+the gap cannot see is looked for by its signature alone: lines that move, in significantly more real frames than
+corrected sim frames (diagnose/arcs.py `find_lines`); one found is named with the parameters the lines measure.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from typing import ClassVar, TypeVar
 import cv2
 import numpy as np
 
-from sonar_realism.diagnose.arcs import ArcCheck, check_arcs
+from sonar_realism.diagnose.arcs import ArcCheck, check_arcs, find_lines, interference_from_lines
 from sonar_realism.diagnose.config import DiagnoseConfig, SearchConfig
 from sonar_realism.diagnose.gap import FeatureScale, Stats, best_frequency, bootstrap_gain, gap, gap_closed
 from sonar_realism.diagnose.ghost import (
@@ -44,6 +46,7 @@ from sonar_realism.diagnose.leakage import LeakageCheck, check_leakage
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     Alternative,
+    Found,
     GainPatternFit,
     GainSpot,
     RankedEffect,
@@ -436,7 +439,7 @@ class Selection:
     """`effects`: the selected effects as finally fitted; `path`: every step taken; `stopped`: why the forward
     selection ended; `stand_ins`: effects dropped because a gain pattern explained as much; `gap`: the held-out
     gap after `effects`; `stats`: their held-out statistics; `unconfirmed`: effects dropped because the real
-    frames lack their signature."""
+    frames lack their signature; `found`: effects named by their signature alone."""
 
     effects: list[Effect]
     path: list[Step]
@@ -445,6 +448,7 @@ class Selection:
     gap: float
     stats: Stats | None
     unconfirmed: list[Unconfirmed] = dataclasses.field(default_factory=list)
+    found: list[Found] = dataclasses.field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -532,6 +536,11 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     significantly better (the paired bootstrap's lower bound above 0), the effect is dropped (a "stand-in"). The
     burden is on the gain pattern, so a true effect that the statistics tell from a gain only weakly (a multipath
     ghost on a seabed-filled scene) is kept.
+
+    Last, when interference is a candidate and not selected, the real held-out frames with a line that moves are
+    counted against the corrected sim's (`arcs.find_lines`): significantly more find it, with the parameters the
+    lines measure (`arcs.interference_from_lines`), listed in `found`. It comes after the gain check because a
+    gain pattern cannot make lines that move, and the gap, which a few lines barely move, cannot judge it.
     """
     c = config
     chosen: list[Effect] = []
@@ -729,4 +738,18 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             why = f"fitted with {', '.join(off)} off" if off else "does no more than a gain pattern"
             progress(f"{effect.name} {why} ({fit.describe()}): not blamed; held-out gap {gap_rest:.4g}")
-    return Selection(chosen, path, stopped, stand_ins, current, current_stats, unconfirmed)
+
+    found: list[Found] = []
+    if (problem.real_images is not None and problem.sim_images is not None and len(chosen) < c.max_effects
+            and any(solo.ranked.name == Interference.name for solo in ranked)
+            and not any(isinstance(e, Interference) for e in chosen)):
+        lines = find_lines(problem.real_images, problem.sim_images(chosen))
+        if lines.found:
+            effect = interference_from_lines(problem.real_images, lines)
+            gap_with, stats_with = holdout([*chosen, effect])
+            found.append(Found(effect.name, effect.params(), lines.describe(), current, gap_with))
+            chosen, current, current_stats = [*chosen, effect], gap_with, stats_with
+            path.append(Step("found", effect.name, gap_with))
+            if progress:
+                progress(f"{effect.name} found by its signature ({lines.describe()}); held-out gap {gap_with:.4g}")
+    return Selection(chosen, path, stopped, stand_ins, current, current_stats, unconfirmed, found)
