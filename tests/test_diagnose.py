@@ -595,6 +595,23 @@ def test_lines_that_move_are_found_and_neither_a_fixed_band_nor_speckle_nor_a_co
     assert fitted.floor_db > -3.5  # as bright across the fan as at its peak
 
 
+def test_a_band_at_one_range_is_fixed_when_the_range_window_changes_from_ping_to_ping():
+    sim, real = speckled(30, seed=1) * 0.2, speckled(30, seed=2) * 0.2
+    ends = np.random.default_rng(5).uniform(8.0, 12.0, 30)
+    ranges = np.stack([np.linspace(0.1, end, 128) for end in ends])
+    band = real.copy()
+    for frame, axis in zip(band, ranges, strict=True):
+        row = int(np.argmin(np.abs(axis - 5.0)))  # a housing reflection 5 m out: another row in every frame
+        frame[row:row + 2] = np.sqrt(frame[row:row + 2] ** 2 + 0.25)
+    assert (line_strength(band) >= LINE_DB).mean() > 0.8  # counted by row, it would be a line in every frame
+    assert (line_strength(band, ranges) < LINE_DB).all()
+    assert not find_lines(band, sim, ranges, ranges).found
+    assert check_arcs(band, real, ranges, ranges).real_share > 0.8
+    assert not check_arcs(band, real, ranges, ranges).confirmed
+    lined = with_lines(real, every=2, level=0.5, seed=3)  # lines that move are still found on these axes
+    assert find_lines(lined, sim, ranges, ranges).found
+
+
 def test_interference_the_gap_does_not_see_is_found_by_its_lines(tmp_path):
     sim = sim_frames(16, seed=1)
     lines = make_effect("interference", rate_per_ping=1.0, amplitude=0.3, floor_db=-10.0, thickness_m=0.1)

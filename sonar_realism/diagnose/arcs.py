@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import maximum_filter1d, median_filter
 from scipy.stats import fisher_exact
 
 from sonar_realism.sim.effects import Interference
@@ -40,14 +40,38 @@ SKIP_SHARE = 0.1
 FIXED_EXCESS = 0.4
 
 
-def fixed_row_share(images: np.ndarray) -> float:
-    """The largest share of frames [n, n_ranges, n_beams] in which one row (beyond the first SKIP_SHARE) stands
-    out of its neighbourhood."""
+def at_same_range(values: np.ndarray, ranges_m: np.ndarray | None, typical: str) -> np.ndarray:
+    """For every frame's row of `values` [n, n_ranges], the `typical` ("median" or "mean") over the frames of the
+    value at that row's range in metres, not its index: a sensor whose range window changes from ping to ping (the
+    calibrated Oculus) puts a reflection at a fixed range on other rows in every frame. `ranges_m` [n, n_ranges]:
+    each frame's range axis (None: one axis for all). Where fewer than a quarter of the frames reach a range, 0 (no
+    band can be told there). The typical is the largest within a range bin, so a band that falls between two rows
+    in some frames is met at its peak."""
+    reduce = {"median": np.nanmedian, "mean": np.nanmean}[typical]
+    if ranges_m is None or np.allclose(ranges_m, ranges_m[:1]):
+        return np.broadcast_to(reduce(values, axis=0), values.shape)
+    n, n_ranges = values.shape
+    grid = np.linspace(float(ranges_m[:, 0].min()), float(ranges_m[:, -1].max()), 2 * n_ranges)
+    on_grid = np.stack([np.interp(grid, r, v, left=np.nan, right=np.nan) for r, v in zip(ranges_m, values,
+                                                                                          strict=True)])
+    covered = np.isfinite(on_grid).sum(axis=0)
+    result = np.zeros(grid.size)
+    enough = covered >= max(2, n / 4)
+    result[enough] = reduce(on_grid[:, enough], axis=0)
+    bin_m = float(np.max(np.diff(ranges_m, axis=1)))
+    reach = max(1, int(np.ceil(bin_m / (grid[1] - grid[0]))))
+    widest = maximum_filter1d(result, size=2 * reach + 1, mode="nearest")
+    return np.stack([np.interp(r, grid, widest) for r in ranges_m])
+
+
+def fixed_row_share(images: np.ndarray, ranges_m: np.ndarray | None = None) -> float:
+    """The largest share of frames [n, n_ranges, n_beams] in which a row at one range (beyond the first SKIP_SHARE
+    of the window) stands out of its neighbourhood; `ranges_m` as in `at_same_range`."""
     rows = images.astype(np.float32).mean(axis=2)
     level = median_filter(rows, size=(1, WINDOW_ROWS), mode="nearest")
-    lit = rows - level > STANDOUT * (level + 0.01)
+    lit = (rows - level > STANDOUT * (level + 0.01)).astype(np.float64)
     first = int(SKIP_SHARE * rows.shape[1])
-    return float(lit[:, first:].mean(axis=0).max()) if rows.shape[1] > first else 0.0
+    return float(at_same_range(lit, ranges_m, "mean")[:, first:].max()) if rows.shape[1] > first else 0.0
 
 
 @dataclass(frozen=True)
@@ -69,8 +93,9 @@ class ArcCheck:
                 f"{100 * self.needed:.0f} points more)")
 
 
-def check_arcs(real_images: np.ndarray, sim_images: np.ndarray) -> ArcCheck:
-    return ArcCheck(fixed_row_share(real_images), fixed_row_share(sim_images))
+def check_arcs(real_images: np.ndarray, sim_images: np.ndarray, real_ranges_m: np.ndarray | None = None,
+               sim_ranges_m: np.ndarray | None = None) -> ArcCheck:
+    return ArcCheck(fixed_row_share(real_images, real_ranges_m), fixed_row_share(sim_images, sim_ranges_m))
 
 
 # A line: a row whose log power, averaged over every beam, stands this far above the brighter of its flanks (rows
@@ -123,15 +148,16 @@ def _ridges(images: np.ndarray) -> np.ndarray:
     return out
 
 
-def _moving(ridge: np.ndarray) -> np.ndarray:
-    """Each row's typical excess over the frames taken off: a band lit in every frame counts for nothing, a line at
-    a new range each ping in full."""
-    return ridge - np.maximum(np.median(ridge, axis=0), 0.0)
+def _moving(ridge: np.ndarray, ranges_m: np.ndarray | None) -> np.ndarray:
+    """Each row's typical excess over the frames at its range taken off: a band lit in every frame counts for
+    nothing, a line at a new range each ping in full."""
+    return ridge - np.maximum(at_same_range(ridge, ranges_m, "median"), 0.0)
 
 
-def line_strength(images: np.ndarray) -> np.ndarray:
-    """Per frame [n_frames, n_ranges, n_beams] the strongest line that moves (dB over its flanks, see LINE_DB)."""
-    return _moving(_ridges(images)).max(axis=1)
+def line_strength(images: np.ndarray, ranges_m: np.ndarray | None = None) -> np.ndarray:
+    """Per frame [n_frames, n_ranges, n_beams] the strongest line that moves (dB over its flanks, see LINE_DB);
+    `ranges_m` as in `at_same_range`."""
+    return _moving(_ridges(images), ranges_m).max(axis=1)
 
 
 @dataclass(frozen=True)
@@ -159,21 +185,23 @@ class LineFind:
                 f"{self.sim_frames} corrected sim frames (one-sided p = {self.p_value:.2g})")
 
 
-def find_lines(real_images: np.ndarray, sim_images: np.ndarray) -> LineFind:
-    real_lit = int((line_strength(real_images) >= LINE_DB).sum())
-    sim_lit = int((line_strength(sim_images) >= LINE_DB).sum())
+def find_lines(real_images: np.ndarray, sim_images: np.ndarray, real_ranges_m: np.ndarray | None = None,
+               sim_ranges_m: np.ndarray | None = None) -> LineFind:
+    real_lit = int((line_strength(real_images, real_ranges_m) >= LINE_DB).sum())
+    sim_lit = int((line_strength(sim_images, sim_ranges_m) >= LINE_DB).sum())
     n_real, n_sim = len(real_images), len(sim_images)
     p_value = float(fisher_exact([[real_lit, n_real - real_lit], [sim_lit, n_sim - sim_lit]],
                                  alternative="greater")[1])
     return LineFind(real_lit, n_real, sim_lit, n_sim, p_value)
 
 
-def interference_from_lines(real_images: np.ndarray, find: LineFind) -> Interference:
+def interference_from_lines(real_images: np.ndarray, find: LineFind, ranges_m: np.ndarray | None = None
+                            ) -> Interference:
     """The catalogue's interference as the real frames' lines measure it: the rate of pings with a line beyond the
     sim's (Poisson: P(at least one) = 1 - e^-rate), the amplitude of a line's peak over its flanks and its floor
     across the fan (the median over beams against the peak), medians over the frames with a line. The pulse's
     thickness stays the catalogue's: the lines are too thin for the grid to measure."""
-    strength = _moving(_ridges(real_images))
+    strength = _moving(_ridges(real_images), ranges_m)
     peaks, floors = [], []
     for index in np.nonzero(strength.max(axis=1) >= LINE_DB)[0]:
         row = int(np.argmax(strength[index]))

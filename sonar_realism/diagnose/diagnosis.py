@@ -120,6 +120,9 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     eval_frames = [sim[i] for i in sim_hold_idx[:config.eval_frames]]
     real_fit = _images([real[i] for i in real_fit_idx[:config.real_frames]], config.normalize)
     real_hold = _images([real[i] for i in real_hold_idx[:config.real_frames]], config.normalize)
+    # each held-out frame's own range axis: a sensor's window may change from ping to ping
+    real_hold_ranges = np.stack([real[i].ranges_m for i in real_hold_idx[:config.real_frames]])
+    eval_ranges = np.stack([f.ranges_m for f in eval_frames])
 
     stats_cfg = config.statistics
     raw_eval = corrected_images(eval_frames, [], config.search.seed, config.normalize)
@@ -173,7 +176,8 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     starts = signature_starts(real_fit, candidate_images[chosen], reference.ranges_m)
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
-                               real_images=real_hold, sim_images=holdout_images, signature_starts=starts)
+                               real_images=real_hold, sim_images=holdout_images, real_ranges_m=real_hold_ranges,
+                               sim_ranges_m=eval_ranges, signature_starts=starts)
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)

@@ -396,7 +396,9 @@ class SelectionProblem:
     `stats_before` (None: no significance test, no bootstrap frequencies), and the gap before. `ranges_m` /
     `bearings_deg` place a gain pattern. `scene_terms`: the geometry and scene candidates' starting points (empty:
     sensor effects only). `real_images` (the real held-out frames) and `sim_images` (effects -> the held-out sim
-    frames corrected by them) test a selected effect for its signature (`signature_check`; None: no test)."""
+    frames corrected by them) test a selected effect for its signature (`signature_check`; None: no test);
+    `real_ranges_m` / `sim_ranges_m` [n, n_ranges]: those frames' own range axes, where a sensor's range window
+    changes from ping to ping (None: all on `ranges_m`)."""
 
     fit_frames: Sequence[SonarImage]
     fit_target: Stats
@@ -411,6 +413,8 @@ class SelectionProblem:
     scene_terms: Mapping[str, SceneTerm] = dataclasses.field(default_factory=dict)
     real_images: np.ndarray | None = None
     sim_images: Callable[[Sequence[Effect]], np.ndarray] | None = None
+    real_ranges_m: np.ndarray | None = None
+    sim_ranges_m: np.ndarray | None = None
     signature_starts: Mapping[str, Effect] = dataclasses.field(default_factory=dict)
 
     def start(self, name: str) -> Effect:
@@ -464,16 +468,17 @@ class Solo:
 Trial = tuple[float, list[Effect], Effect, Solo, Stats | None]
 
 
-def signature_check(effect: Effect, real_images: np.ndarray, sim_images: Callable[[], np.ndarray],
-                    ranges_m: np.ndarray) -> GhostCheck | ArcCheck | None:
+def signature_check(effect: Effect, problem: SelectionProblem, sim_images: Callable[[], np.ndarray]
+                    ) -> GhostCheck | ArcCheck | None:
     """The test of what `effect` leaves in every frame that nothing else does, on the real held-out frames
     against the sim's corrected by the other selected effects (`sim_images`, made only for an effect that has a
     test); None for an effect without one."""
-    if isinstance(effect, Multipath):
-        return check_ghost(range_lag_correlation(real_images), range_lag_correlation(sim_images()),
-                           ghost_lag_bins(effect.ghost_offset_m, ranges_m))
-    if isinstance(effect, Interference):
-        return check_arcs(real_images, sim_images())
+    real = problem.real_images
+    if real is not None and isinstance(effect, Multipath):
+        return check_ghost(range_lag_correlation(real), range_lag_correlation(sim_images()),
+                           ghost_lag_bins(effect.ghost_offset_m, problem.ranges_m))
+    if real is not None and isinstance(effect, Interference):
+        return check_arcs(real, sim_images(), problem.real_ranges_m, problem.sim_ranges_m)
     return None
 
 
@@ -685,8 +690,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     # difference (another seabed) or a fixed band that its added power mimics
     for effect in list(chosen) if problem.real_images is not None and problem.sim_images is not None else []:
         rest = [e for e in chosen if e is not effect]
-        check = signature_check(effect, problem.real_images, lambda rest=rest: problem.sim_images(rest),
-                                problem.ranges_m)
+        check = signature_check(effect, problem, lambda rest=rest: problem.sim_images(rest))
         if check is None or check.confirmed:
             continue
         rest = refit_each(rest)
@@ -743,9 +747,10 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     if (problem.real_images is not None and problem.sim_images is not None and len(chosen) < c.max_effects
             and any(solo.ranked.name == Interference.name for solo in ranked)
             and not any(isinstance(e, Interference) for e in chosen)):
-        lines = find_lines(problem.real_images, problem.sim_images(chosen))
+        lines = find_lines(problem.real_images, problem.sim_images(chosen), problem.real_ranges_m,
+                           problem.sim_ranges_m)
         if lines.found:
-            effect = interference_from_lines(problem.real_images, lines)
+            effect = interference_from_lines(problem.real_images, lines, problem.real_ranges_m)
             gap_with, stats_with = holdout([*chosen, effect])
             found.append(Found(effect.name, effect.params(), lines.describe(), current, gap_with))
             chosen, current, current_stats = [*chosen, effect], gap_with, stats_with
