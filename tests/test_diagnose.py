@@ -610,6 +610,10 @@ def test_a_band_at_one_range_is_fixed_when_the_range_window_changes_from_ping_to
     assert not check_arcs(band, real, ranges, ranges).confirmed
     lined = with_lines(real, every=2, level=0.5, seed=3)  # lines that move are still found on these axes
     assert find_lines(lined, sim, ranges, ranges).found
+    at_row = real.copy()
+    at_row[::2, 60:] *= 5.0  # a bright seabed under the band's row in half the frames: its contrast comes and goes
+    at_row[:, 70:72] = np.sqrt(at_row[:, 70:72] ** 2 + 0.25)  # an artefact at a fixed sample, whatever the window
+    assert not find_lines(at_row, sim, ranges, ranges).found
 
 
 def test_interference_the_gap_does_not_see_is_found_by_its_lines(tmp_path):
