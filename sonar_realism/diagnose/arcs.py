@@ -40,16 +40,15 @@ SKIP_SHARE = 0.1
 FIXED_EXCESS = 0.4
 
 
-def at_same_range(values: np.ndarray, ranges_m: np.ndarray | None, typical: str) -> np.ndarray:
-    """For every frame's row of `values` [n, n_ranges], the `typical` ("median" or "mean") over the frames of the
-    value at that row's range in metres, not its index: a sensor whose range window changes from ping to ping (the
-    calibrated Oculus) puts a reflection at a fixed range on other rows in every frame. `ranges_m` [n, n_ranges]:
-    each frame's range axis (None: one axis for all). Where fewer than a quarter of the frames reach a range, 0 (no
-    band can be told there). The typical is the largest within a range bin, so a band that falls between two rows
-    in some frames is met at its peak."""
-    reduce = {"median": np.nanmedian, "mean": np.nanmean}[typical]
+def at_same_range(values: np.ndarray, ranges_m: np.ndarray | None) -> np.ndarray:
+    """For every frame's row of `values` [n, n_ranges], the mean over the frames of the value at that row's range
+    in metres, not its index: a sensor whose range window changes from ping to ping (the calibrated Oculus) puts a
+    reflection at a fixed range on other rows in every frame. `ranges_m` [n, n_ranges]: each frame's range axis
+    (None: one axis for all). Where fewer than a quarter of the frames reach a range, 0 (no band can be told there).
+    The mean is the largest within a range bin, so a band that falls between two rows in some frames is met at its
+    peak."""
     if ranges_m is None or np.allclose(ranges_m, ranges_m[:1]):
-        return np.broadcast_to(reduce(values, axis=0), values.shape)
+        return np.broadcast_to(values.mean(axis=0), values.shape)
     n, n_ranges = values.shape
     grid = np.linspace(float(ranges_m[:, 0].min()), float(ranges_m[:, -1].max()), 2 * n_ranges)
     on_grid = np.stack([np.interp(grid, r, v, left=np.nan, right=np.nan) for r, v in zip(ranges_m, values,
@@ -57,7 +56,7 @@ def at_same_range(values: np.ndarray, ranges_m: np.ndarray | None, typical: str)
     covered = np.isfinite(on_grid).sum(axis=0)
     result = np.zeros(grid.size)
     enough = covered >= max(2, n / 4)
-    result[enough] = reduce(on_grid[:, enough], axis=0)
+    result[enough] = np.nanmean(on_grid[:, enough], axis=0)
     bin_m = float(np.max(np.diff(ranges_m, axis=1)))
     reach = max(1, int(np.ceil(bin_m / (grid[1] - grid[0]))))
     widest = maximum_filter1d(result, size=2 * reach + 1, mode="nearest")
@@ -69,7 +68,7 @@ def fixed_share(lit: np.ndarray, ranges_m: np.ndarray | None) -> np.ndarray:
     range in metres, whichever is larger (a row a neighbour's reach wide): an artefact at a fixed sample (a gain
     step) stays on its row, a reflection at a fixed delay (the housing) at its range, whatever the window."""
     by_row = maximum_filter1d(lit.mean(axis=0), size=3, mode="nearest")
-    return np.maximum(by_row[None, :], at_same_range(lit.astype(np.float64), ranges_m, "mean"))
+    return np.maximum(by_row[None, :], at_same_range(lit.astype(np.float64), ranges_m))
 
 
 def fixed_row_share(images: np.ndarray, ranges_m: np.ndarray | None = None) -> float:

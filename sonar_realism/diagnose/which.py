@@ -16,9 +16,10 @@ sidelobes whose fitted form lifts the dark beams of bright rows where the real f
 (diagnose/leakage.py) give way to the runner-up of their step when it passes the step's tests by itself. Last,
 each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
 whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
-lacks) is not blamed, and its part of the gap stays residual, with the pattern's place. Then, last, an interference
-the gap cannot see is looked for by its signature alone: lines that move, in significantly more real frames than
-corrected sim frames (diagnose/arcs.py `find_lines`); one found is named with the parameters the lines measure.
+lacks) is not blamed, and its part of the gap stays residual, with the pattern's place. After all that, an
+interference the gap cannot see is looked for by its signature alone: lines that move, in significantly more real
+frames than corrected sim frames (diagnose/arcs.py `find_lines`); one found is named with the parameters the lines
+measure.
 """
 
 from __future__ import annotations
