@@ -11,11 +11,11 @@ import pytest
 from sonar_realism.diagnose.blind_forms import BLIND, _ring_extent_m, _stepped_gain_db
 from sonar_realism.diagnose.heldout import UNCATALOGUED
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import EFFECTS
 from tests.validation_forms import (
-    FAMILIES,
     apply_form,
+    check_draw_ranges,
     check_output_contract,
+    check_registry,
     make_frame,
     place_covers,
     point_frame,
@@ -35,24 +35,13 @@ def inside(name: str, seed: int = 0) -> dict[str, float]:
 # --- registry and draws ----------------------------------------------------------------------------------------------
 
 def test_registry_holds_every_family_once_and_two_uncatalogued_forms() -> None:
-    families = [entry.family for entry in BLIND.values()]
-    assert sorted(f for f in families if f != UNCATALOGUED) == sorted(FAMILIES)
-    assert families.count(UNCATALOGUED) == 2
-    assert all(name == f"{entry.family}/{entry.form}" for name, entry in BLIND.items())
+    check_registry(BLIND)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_draw_ranges_nest_and_stay_inside_the_catalogue_bounds(name: str) -> None:
     entry = BLIND[name]
-    assert entry.description and entry.strength in entry.params
-    assert (entry.place is not None) == (entry.family == UNCATALOGUED)
-    bounds = {} if entry.family == UNCATALOGUED else EFFECTS[entry.family].PARAM_BOUNDS
-    for key, param in entry.params.items():
-        assert param.wide[0] < param.inside[0] <= param.inside[1] < param.wide[1], key
-        if param.catalogue:
-            assert entry.family != UNCATALOGUED
-            lo, hi = bounds[param.catalogue]
-            assert lo <= param.inside[0] and param.inside[1] <= hi, key
+    check_draw_ranges(entry)
     rng = np.random.default_rng(3)
     for _ in range(20):
         assert entry.outside_bounds(entry.draw("inside", rng)) == []

@@ -23,12 +23,12 @@ from sonar_realism.diagnose.second_blind_forms import (
     tvg_gains_db,
 )
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import EFFECTS
 from tests.validation_forms import (
-    FAMILIES,
     META,
     apply_form,
+    check_draw_ranges,
     check_output_contract,
+    check_registry,
     flat_frame,
     make_frame,
     place_covers,
@@ -53,10 +53,7 @@ def row_of(frame: SonarImage, r: float) -> int:
 # --- registry and draws ----------------------------------------------------------------------------------------------
 
 def test_registry_holds_every_family_once_and_two_uncatalogued_forms() -> None:
-    families = [entry.family for entry in SECOND_BLIND.values()]
-    assert sorted(f for f in families if f != UNCATALOGUED) == sorted(FAMILIES)
-    assert families.count(UNCATALOGUED) == 2
-    assert all(name == f"{entry.family}/{entry.form}" for name, entry in SECOND_BLIND.items())
+    check_registry(SECOND_BLIND)
     assert SECOND_BLIND in REGISTRIES
     assert all(find_implementation(name) is SECOND_BLIND[name] for name in NAMES)
     others = {name for registry in REGISTRIES if registry is not SECOND_BLIND for name in registry}
@@ -66,15 +63,7 @@ def test_registry_holds_every_family_once_and_two_uncatalogued_forms() -> None:
 @pytest.mark.parametrize("name", NAMES)
 def test_draw_ranges_nest_and_stay_inside_the_catalogue_bounds(name: str) -> None:
     entry = SECOND_BLIND[name]
-    assert entry.description and entry.strength in entry.params
-    assert (entry.place is not None) == (entry.family == UNCATALOGUED)
-    bounds = {} if entry.family == UNCATALOGUED else EFFECTS[entry.family].PARAM_BOUNDS
-    for key, param in entry.params.items():
-        assert param.wide[0] < param.inside[0] <= param.inside[1] < param.wide[1], key
-        if param.catalogue:
-            assert entry.family != UNCATALOGUED
-            lo, hi = bounds[param.catalogue]
-            assert lo <= param.inside[0] and param.inside[1] <= hi, key
+    check_draw_ranges(entry)
     rng = np.random.default_rng(3)
     for _ in range(20):
         drawn = entry.draw("inside", rng)

@@ -1,5 +1,6 @@
 """What the tests of the blind validation sets (diagnose/blind_forms.py, diagnose/second_blind_forms.py) share:
-small synthetic frames, one form's application, and the contract every form keeps (output, place)."""
+small synthetic frames, one form's application, and the contract every form keeps (registry, draws, output,
+place)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,10 @@ import math
 
 import numpy as np
 
-from sonar_realism.diagnose.heldout import apply_held_out
+from sonar_realism.diagnose.heldout import UNCATALOGUED, apply_held_out
 from sonar_realism.diagnose.heldout.base import Implementation
 from sonar_realism.frames import SonarImage
+from sonar_realism.sim.effects import EFFECTS
 
 FAMILIES = ("elevation_spread", "multipath", "speckle", "motion_blur", "beam_sidelobes", "range_blur", "tvg_noise",
             "interference", "ring_down", "gamma_quantization")
@@ -87,3 +89,25 @@ def place_covers(frame: SonarImage, changed: np.ndarray, range_m: tuple[tuple[fl
     for lo, hi in bearing_deg:
         in_bearing |= (bearings >= lo - 1e-9) & (bearings <= hi + 1e-9)
     return bool(in_range.all() and in_bearing.all())
+
+
+def check_registry(registry: dict[str, Implementation]) -> None:
+    """One form per catalogued family, two un-catalogued effects, each named `family/form`."""
+    families = [entry.family for entry in registry.values()]
+    assert sorted(f for f in families if f != UNCATALOGUED) == sorted(FAMILIES)
+    assert families.count(UNCATALOGUED) == 2
+    assert all(name == f"{entry.family}/{entry.form}" for name, entry in registry.items())
+
+
+def check_draw_ranges(entry: Implementation) -> None:
+    """Wide draws contain the inside ones, catalogued parameters' inside draws stay inside the catalogue's bounds,
+    and only un-catalogued effects have a place."""
+    assert entry.description and entry.strength in entry.params
+    assert (entry.place is not None) == (entry.family == UNCATALOGUED)
+    bounds = {} if entry.family == UNCATALOGUED else EFFECTS[entry.family].PARAM_BOUNDS
+    for key, param in entry.params.items():
+        assert param.wide[0] < param.inside[0] <= param.inside[1] < param.wide[1], key
+        if param.catalogue:
+            assert entry.family != UNCATALOGUED
+            lo, hi = bounds[param.catalogue]
+            assert lo <= param.inside[0] and param.inside[1] <= hi, key
