@@ -165,22 +165,30 @@ def _moving(ridge: np.ndarray, ranges_m: np.ndarray | None) -> np.ndarray:
     return np.where(fixed_share(ridge >= LINE_DB, ranges_m) >= FIXED_LINE_SHARE, 0.0, ridge)
 
 
+def _strongest_lines(images: np.ndarray, ranges_m: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame the strongest line that moves (dB over its flanks) and its row."""
+    moving = _moving(_ridges(images), ranges_m)
+    return moving.max(axis=1), moving.argmax(axis=1)
+
+
 def line_strength(images: np.ndarray, ranges_m: np.ndarray | None = None) -> np.ndarray:
     """Per frame [n_frames, n_ranges, n_beams] the strongest line that moves (dB over its flanks, see LINE_DB);
     `ranges_m` as in `at_same_range`."""
-    return _moving(_ridges(images), ranges_m).max(axis=1)
+    return _strongest_lines(images, ranges_m)[0]
 
 
 @dataclass(frozen=True)
 class LineFind:
     """Frames with a line that moves (`line_strength` >= LINE_DB) among the real frames and the corrected sim's,
-    and the one-sided p-value of the real frames having more."""
+    the one-sided p-value of the real frames having more, and where the real frames' lines are (`real_lines`:
+    frame index and row of each lit frame's strongest line)."""
 
     real_lit: int
     real_frames: int
     sim_lit: int
     sim_frames: int
     p_value: float
+    real_lines: tuple[tuple[int, int], ...] = ()
 
     @property
     def excess(self) -> float:
@@ -198,24 +206,22 @@ class LineFind:
 
 def find_lines(real_images: np.ndarray, sim_images: np.ndarray, real_ranges_m: np.ndarray | None = None,
                sim_ranges_m: np.ndarray | None = None) -> LineFind:
-    real_lit = int((line_strength(real_images, real_ranges_m) >= LINE_DB).sum())
+    strength, rows = _strongest_lines(real_images, real_ranges_m)
+    lit = np.nonzero(strength >= LINE_DB)[0]
     sim_lit = int((line_strength(sim_images, sim_ranges_m) >= LINE_DB).sum())
     n_real, n_sim = len(real_images), len(sim_images)
-    p_value = float(fisher_exact([[real_lit, n_real - real_lit], [sim_lit, n_sim - sim_lit]],
+    p_value = float(fisher_exact([[lit.size, n_real - lit.size], [sim_lit, n_sim - sim_lit]],
                                  alternative="greater")[1])
-    return LineFind(real_lit, n_real, sim_lit, n_sim, p_value)
+    return LineFind(int(lit.size), n_real, sim_lit, n_sim, p_value, tuple((int(i), int(rows[i])) for i in lit))
 
 
-def interference_from_lines(real_images: np.ndarray, find: LineFind, ranges_m: np.ndarray | None = None
-                            ) -> Interference:
-    """The catalogue's interference as the real frames' lines measure it: the rate of pings with a line beyond the
-    sim's (Poisson: P(at least one) = 1 - e^-rate), the amplitude of a line's peak over its flanks and its floor
-    across the fan (the median over beams against the peak), medians over the frames with a line. The pulse's
-    thickness stays the catalogue's: the lines are too thin for the grid to measure."""
-    strength = _moving(_ridges(real_images), ranges_m)
+def interference_from_lines(real_images: np.ndarray, find: LineFind) -> Interference:
+    """The catalogue's interference as the real frames' lines (`find`, made on `real_images`) measure it: the rate
+    of pings with a line beyond the sim's (Poisson: P(at least one) = 1 - e^-rate), the amplitude of a line's peak
+    over its flanks and its floor across the fan (the median over beams against the peak), medians over the frames
+    with a line. The pulse's thickness stays the catalogue's: the lines are too thin for the grid to measure."""
     peaks, floors = [], []
-    for index in np.nonzero(strength.max(axis=1) >= LINE_DB)[0]:
-        row = int(np.argmax(strength[index]))
+    for index, row in find.real_lines:
         frame = real_images[index:index + 1]
         before, after = _flanks(_log_power(frame))
         flanks = _flanks(frame.astype(np.float64) ** 2)

@@ -751,7 +751,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         lines = find_lines(problem.real_images, problem.sim_images(chosen), problem.real_ranges_m,
                            problem.sim_ranges_m)
         if lines.found:
-            effect = interference_from_lines(problem.real_images, lines, problem.real_ranges_m)
+            effect = interference_from_lines(problem.real_images, lines)
             gap_with, stats_with = holdout([*chosen, effect])
             found.append(Found(effect.name, effect.params(), lines.describe(), current, gap_with))
             chosen, current, current_stats = [*chosen, effect], gap_with, stats_with
