@@ -348,6 +348,23 @@ def test_multipath_adds_energy_only_beyond_the_true_range() -> None:
     assert ghost_power == pytest.approx(20 * 0.64 * (0.5 ** 2 + 0.5 ** 4), rel=0.01)
 
 
+def test_multipath_coherence_speckles_the_ghost_over_the_direct_return_keeping_its_mean_power() -> None:
+    image = np.full((N_RANGES, N_BEAMS), 0.5, np.float32)
+    frame = make_frame(image)
+    smooth = Multipath(reflection_coeff=0.6, ghost_offset_m=1.0).apply(image, frame, rng())
+    coherent = Multipath(reflection_coeff=0.6, ghost_offset_m=1.0, coherence=1.0).apply(image, frame, rng())
+    overlap = slice(math.ceil(1.0 / frame.range_resolution_m) + 1, None)
+    assert np.ptp(smooth[overlap]) < 1e-6  # powers add: a flat scene stays flat
+    power = coherent[overlap].astype(np.float64) ** 2
+    assert power.mean() == pytest.approx(0.25 * (1 + 0.36), rel=0.03)  # the cross term averages out
+    assert power.std() / power.mean() == pytest.approx(2 * 0.6 / 1.36 / math.sqrt(2), rel=0.05)
+    before_ghost = math.floor(1.0 / frame.range_resolution_m)
+    np.testing.assert_allclose(coherent[:before_ghost], image[:before_ghost], rtol=1e-6)
+    untouched = rng()
+    Multipath(reflection_coeff=0.6, ghost_offset_m=1.0).apply(image, frame, untouched)
+    assert untouched.random() == rng().random()  # no draws without coherence: frames without it are as before
+
+
 def test_motion_blur_shears_along_bearing_growing_with_range() -> None:
     image = np.zeros((N_RANGES, N_BEAMS), np.float32)
     image[:, 48] = 0.5

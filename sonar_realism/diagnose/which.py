@@ -10,10 +10,11 @@ candidate wins is its stability, and a step whose runner-up wins often is report
 After forward selection, each selected effect is tried out again (backward pruning): one that the effects chosen
 after it make redundant (motion blur standing in for beam sidelobes until they are selected) is dropped. A
 selected multipath must then show its ghost in the real frames (diagnose/ghost.py), and a selected interference
-arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Sidelobes are held to their
-signature while they are picked: fitted at their strongest they stand in for a noise floor or a yaw smear, so
-sidelobes whose fitted form lifts the dark beams of bright rows where the real frames' are not lifted
-(diagnose/leakage.py) give way to the runner-up of their step when it passes the step's tests by itself. Last,
+arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Effects are also held to
+their signature while they are picked: a pick whose signature the real frames lack gives way to the runner-up of
+its step when that passes the step's tests by itself. Fitted at their strongest, sidelobes stand in for a noise
+floor or a yaw smear (their signature: the dark beams of bright rows lifted, diagnose/leakage.py), and a multipath
+whose ghosts interfere with the direct return stands in for speckle (its signature: the ghost). Last,
 each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
 whose fitted form does no more than such a pattern (a TVG ramp standing in for a beam-gain ripple the catalogue
 lacks) is not blamed, and its part of the gap stays residual, with the pattern's place. After all that, an
@@ -535,7 +536,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     The signature checks then drop a selected multipath whose ghost (each frame's own scene again at the fitted
     offset) the real held-out frames do not show (`ghost.check_ghost`) and a selected interference whose bright
     rows sit at the same ranges in most real frames (`arcs.check_arcs`); both are listed in `unconfirmed`, as are
-    sidelobes that gave way to their step's runner-up (`sidelobes_yield`) when picked.
+    picks that gave way to their step's runner-up (`signature_yield`).
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
     others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
@@ -587,20 +588,26 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         return bootstrap_gain(worse, better, problem.target, problem.scale, c.bootstrap, c.significance,
                               seed=c.seed + draw)
 
-    def sidelobes_yield(pick: Effect, base: list[Effect], runner_up: list[Trial]
-                        ) -> tuple[Trial, LeakageCheck, tuple[float, float]] | None:
-        """Sidelobes whose fitted form lifts the dark beams of bright rows where the real frames' are not lifted
-        (diagnose/leakage.py) give way to the runner-up of their step if it passes the step's tests by itself.
-        Failing the check is evidence only against a rival that explains the gap too: on a scene whose rows are
-        full of seabed a true sidelobe's lift can be too small to show, and with no rival it is still named."""
-        if (not isinstance(pick, BeamSidelobes) or not runner_up or problem.real_images is None
-                or problem.sim_images is None or current - runner_up[0][0] < least_gain):
+    def signature_yield(pick: Effect, base: list[Effect], runner_up: list[Trial]
+                        ) -> tuple[Trial, LeakageCheck | GhostCheck | ArcCheck, tuple[float, float]] | None:
+        """A pick whose signature the real frames lack gives way to the runner-up of its step if that passes the
+        step's tests by itself: sidelobes whose fitted form lifts the dark beams of bright rows where the real
+        frames' are not lifted (diagnose/leakage.py), a multipath without its ghost, an interference without
+        arcs that move (`signature_check`). Failing the check is evidence only against a rival that explains the
+        gap too: on a scene whose rows are full of seabed a true sidelobe's lift can be too small to show, and
+        with no rival it is still named (a multipath or an interference is then dropped after pruning)."""
+        if (not runner_up or problem.real_images is None or problem.sim_images is None
+                or current - runner_up[0][0] < least_gain):
             return None
-        leakage = check_leakage(problem.real_images, problem.sim_images(base), problem.sim_images([*base, pick]))
-        if leakage.confirmed:
+        check: LeakageCheck | GhostCheck | ArcCheck | None
+        if isinstance(pick, BeamSidelobes):
+            check = check_leakage(problem.real_images, problem.sim_images(base), problem.sim_images([*base, pick]))
+        else:
+            check = signature_check(pick, problem, lambda: problem.sim_images(base))
+        if check is None or check.confirmed:
             return None
         gain, lower = lower_bound(current_stats, runner_up[0][4], 700 + len(chosen))
-        return (runner_up[0], leakage, (gain, lower)) if lower > least_gain else None
+        return (runner_up[0], check, (gain, lower)) if lower > least_gain else None
 
     while remaining and len(chosen) < c.max_effects:
         if current <= c.min_gain * gap_before:
@@ -628,14 +635,15 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             stopped = f"no remaining effect lowers the held-out gap by {c.min_gain:.0%} of the gap before"
             break
         gain, lower = lower_bound(current_stats, best_stats, len(chosen))
-        yielded = sidelobes_yield(best_effect, best_base, sorted(trials, key=lambda t: t[0])[1:2])
+        yielded = signature_yield(best_effect, best_base, sorted(trials, key=lambda t: t[0])[1:2])
         if yielded is not None:
-            rival, leakage, (gain, lower) = yielded
-            unconfirmed.append(Unconfirmed(best_name, best_effect.params(), leakage.describe(), best_gap, rival[0]))
+            rival, signature, (gain, lower) = yielded
+            unconfirmed.append(Unconfirmed(best_name, best_effect.params(), signature.describe(), best_gap,
+                                           rival[0]))
             path.append(Step("unconfirmed", best_name, current))
             remaining = [solo for solo in remaining if solo.ranked.name != best_name]
             if progress:
-                progress(f"{best_name}: the real frames lack its leakage ({leakage.describe()}): "
+                progress(f"{best_name}: the real frames lack its signature ({signature.describe()}): "
                          f"{rival[3].ranked.name} named instead")
             best_gap, best_base, best_effect, best_solo, best_stats = rival
             best_name = best_solo.ranked.name

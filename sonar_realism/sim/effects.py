@@ -516,16 +516,22 @@ class Multipath(Effect, order=20):
     extra apparent range of a ghost is about the same for a scene (`ghost_offset_m`), and each further bounce
     adds the same offset (the comb of parallel arcs seen in tanks). Ghost k has amplitude
     `reflection_coeff`^k. Ghosts add power only at ranges beyond the direct return.
+
+    Where a ghost overlaps a direct return the two fields interfere with a phase that changes from cell to cell
+    (the two paths differ by many wavelengths). `coherence` scales that interference term, 2 sqrt(P_direct
+    P_ghost) cos(phase): 0 adds the powers (many scatterers averaged within a cell: a smooth ghost), 1 is two
+    phasors of random relative phase (a ghost that carries its own speckle over the direct return).
     """
 
     name: ClassVar[str] = "multipath"
     reflection_coeff: float = 0.2
     ghost_offset_m: float = 1.5
     n_ghosts: int = 1
+    coherence: float = 0.0
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
-        "reflection_coeff": (0.0, 0.8), "ghost_offset_m": (0.1, 10.0)}
+        "reflection_coeff": (0.0, 0.8), "ghost_offset_m": (0.1, 10.0), "coherence": (0.0, 1.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
-        "reflection_coeff": (0.0, 1.0), "ghost_offset_m": (1e-3, 1e4), "n_ghosts": (0, 10)}
+        "reflection_coeff": (0.0, 1.0), "ghost_offset_m": (1e-3, 1e4), "n_ghosts": (0, 10), "coherence": (0.0, 1.0)}
 
     def validate(self) -> None:
         super().validate()
@@ -534,7 +540,7 @@ class Multipath(Effect, order=20):
 
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
         power = np.square(intensity, dtype=np.float32)
-        out = power.copy()
+        ghosts = np.zeros_like(power)
         shift_bins = self.ghost_offset_m / _range_bin_m(frame)
         for k in range(1, self.n_ghosts + 1):
             shift = k * shift_bins
@@ -544,9 +550,14 @@ class Multipath(Effect, order=20):
             frac = np.float32(shift - whole)
             scale = np.float32(self.reflection_coeff ** (2 * k))
             # linear interpolation between the two integer shifts keeps sub-bin offsets exact in energy
-            out[..., whole:, :] += scale * (1 - frac) * power[..., :frame.n_ranges - whole, :]
+            ghosts[..., whole:, :] += scale * (1 - frac) * power[..., :frame.n_ranges - whole, :]
             if whole + 1 < frame.n_ranges:
-                out[..., whole + 1:, :] += scale * frac * power[..., :frame.n_ranges - whole - 1, :]
+                ghosts[..., whole + 1:, :] += scale * frac * power[..., :frame.n_ranges - whole - 1, :]
+        out = power + ghosts
+        if self.coherence > 0:  # no draws otherwise: frames without it stay as they were
+            phase = rng.uniform(0.0, 2 * math.pi, size=power.shape).astype(np.float32)
+            out += np.float32(2 * self.coherence) * np.sqrt(power * ghosts) * np.cos(phase)
+            np.maximum(out, 0.0, out=out)
         return np.sqrt(out)
 
 
