@@ -26,6 +26,7 @@ from sonar_realism.diagnose.leakage import check_leakage
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, write_diagnosis
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import (
+    Selection,
     SelectionProblem,
     Solo,
     coordinate_search,
@@ -38,7 +39,7 @@ from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.sim import SensorConfig, simulate
-from sonar_realism.sim.effects import RingDown, apply_effects, make_effect
+from sonar_realism.sim.effects import Effect, RingDown, apply_effects, make_effect
 
 SENSOR = SensorConfig(n_ranges=128, n_beams=128, max_range_m=10.0, elevation_rays=16)
 FAST = DiagnoseConfig(fit_frames=4, eval_frames=8, bootstrap=30, search=SearchConfig(points=4, rounds=1))
@@ -287,43 +288,47 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
     assert [e.name for e in kept.effects] == ["motion_blur", "beam_sidelobes"]
 
 
-def test_sidelobes_whose_leakage_the_real_frames_lack_give_way_to_a_rival_that_explains_the_gap():
-    # The held-out objective as a table: strong sidelobes close most, a noise floor a little less. Real frames with
-    # a noise floor lack the lift the fitted sidelobes put on bright rows' dark beams, so the floor is named; real
-    # frames with those sidelobes show it, and sidelobes are named; with no rival that passes the step's tests the
-    # sidelobes are named whatever the check says.
+def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_effect: Effect) -> Selection:
+    """One selection step on 8 sim frames whose held-out objective is a table: `pick` closes 70 % of the gap,
+    `rival` leaves `rival_gap`; the real frames are the sim's with `real_effect`, for the signature checks."""
     frames = sim_frames(8, seed=3)
     stats = frame_statistics(np.stack([f.normalized() for f in frames]))
     scale = FeatureScale.pooled(stats, stats)
-    sidelobes = make_effect("beam_sidelobes", sidelobe_db=-10.0, crosstalk_db=-15.0)
-    floor = make_effect("tvg_noise", noise_amplitude=0.15)
 
     def images(effects) -> np.ndarray:
         return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
                          for i, f in enumerate(frames)])
 
-    def select(real_effect, rival_gap: float):
-        table = {(): 1.0, ("beam_sidelobes",): 0.3, ("tvg_noise",): rival_gap}
+    table = {(): 1.0, (pick.name,): 0.3, (rival.name,): rival_gap}
 
-        def holdout(effects, gain=None):
-            return table.get(tuple(sorted(e.name for e in effects)), 0.29), None
+    def holdout(effects, gain=None):
+        return table.get(tuple(sorted(e.name for e in effects)), 0.29), None
 
-        ranked = [Solo(RankedEffect("beam_sidelobes", sidelobes.params(), 0.3, 0.0, 0.7, 1.0), sidelobes, None),
-                  Solo(RankedEffect("tvg_noise", floor.params(), rival_gap, 0.0, 1 - rival_gap, 0.0), floor, None)]
-        problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
-                                   frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
-                                   real_images=images([real_effect]), sim_images=images)
-        config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
-                                max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False)
-        return greedy_select(ranked, problem, config)
+    ranked = [Solo(RankedEffect(pick.name, pick.params(), 0.3, 0.0, 0.7, 1.0), pick, None),
+              Solo(RankedEffect(rival.name, rival.params(), rival_gap, 0.0, 1 - rival_gap, 0.0), rival, None)]
+    problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
+                               frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
+                               real_images=images([real_effect]), sim_images=images)
+    config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
+                            max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False)
+    return greedy_select(ranked, problem, config)
 
-    yielded = select(floor, 0.4)
+
+def test_sidelobes_whose_leakage_the_real_frames_lack_give_way_to_a_rival_that_explains_the_gap():
+    # Strong sidelobes close most, a noise floor a little less. Real frames with a noise floor lack the lift the
+    # fitted sidelobes put on bright rows' dark beams, so the floor is named; real frames with those sidelobes show
+    # it, and sidelobes are named; with no rival that passes the step's tests the sidelobes are named whatever the
+    # check says.
+    sidelobes = make_effect("beam_sidelobes", sidelobe_db=-10.0, crosstalk_db=-15.0)
+    floor = make_effect("tvg_noise", noise_amplitude=0.15)
+    yielded = first_step_with_a_rival(sidelobes, floor, 0.4, floor)
     assert [e.name for e in yielded.effects] == ["tvg_noise"]
     assert [(s.action, s.effect) for s in yielded.path] == [
         ("start", "none"), ("unconfirmed", "beam_sidelobes"), ("add", "tvg_noise")]
     assert yielded.unconfirmed[0].signature.startswith("leakage along the row")
-    assert [e.name for e in select(sidelobes, 0.4).effects] == ["beam_sidelobes"]
-    assert [e.name for e in select(floor, 0.98).effects] == ["beam_sidelobes"]  # the rival closes too little
+    assert [e.name for e in first_step_with_a_rival(sidelobes, floor, 0.4, sidelobes).effects] == ["beam_sidelobes"]
+    # the rival closes too little
+    assert [e.name for e in first_step_with_a_rival(sidelobes, floor, 0.98, floor).effects] == ["beam_sidelobes"]
 
 
 def test_a_multipath_whose_ghost_the_real_frames_lack_gives_way_to_a_rival_that_explains_the_gap():
@@ -331,36 +336,13 @@ def test_a_multipath_whose_ghost_the_real_frames_lack_gives_way_to_a_rival_that_
     # more speckle it can close the most (tuning half 1, speckle + gamma: picked over speckle, then dropped for
     # want of its ghost, and the speckle was lost). Picked without its ghost it yields to its step's runner-up;
     # real frames with the ghost keep it.
-    frames = sim_frames(8, seed=3)
-    stats = frame_statistics(np.stack([f.normalized() for f in frames]))
-    scale = FeatureScale.pooled(stats, stats)
     ghost = make_effect("multipath", reflection_coeff=0.7, ghost_offset_m=2.0, coherence=1.0)
     grain = make_effect("speckle", shape_nu=1.5)
-
-    def images(effects) -> np.ndarray:
-        return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
-                         for i, f in enumerate(frames)])
-
-    def select(real_effect):
-        table = {(): 1.0, ("multipath",): 0.3, ("speckle",): 0.4}
-
-        def holdout(effects, gain=None):
-            return table.get(tuple(sorted(e.name for e in effects)), 0.29), None
-
-        ranked = [Solo(RankedEffect("multipath", ghost.params(), 0.3, 0.0, 0.7, 1.0), ghost, None),
-                  Solo(RankedEffect("speckle", grain.params(), 0.4, 0.0, 0.6, 0.0), grain, None)]
-        problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
-                                   frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
-                                   real_images=images([real_effect]), sim_images=images)
-        config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
-                                max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False)
-        return greedy_select(ranked, problem, config)
-
-    yielded = select(grain)
+    yielded = first_step_with_a_rival(ghost, grain, 0.4, grain)
     assert [(s.action, s.effect) for s in yielded.path] == [
         ("start", "none"), ("unconfirmed", "multipath"), ("add", "speckle")]
     assert yielded.unconfirmed[0].signature.startswith("a ghost")
-    assert [e.name for e in select(ghost).effects] == ["multipath"]
+    assert [e.name for e in first_step_with_a_rival(ghost, grain, 0.4, ghost).effects] == ["multipath"]
 
 
 def test_a_gain_is_named_only_if_significantly_at_least_min_gain():
