@@ -20,7 +20,7 @@ whose fitted form does no more than such a pattern (a TVG ramp standing in for a
 lacks) is not blamed, and its part of the gap stays residual, with the pattern's place. After all that, an
 interference the gap cannot see is looked for by its signature alone: lines that move, in significantly more real
 frames than corrected sim frames (diagnose/arcs.py `find_lines`); one found is named with the parameters the lines
-measure.
+measure. So is a ring-down: a band from the first range bin (diagnose/near_field.py).
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from sonar_realism.diagnose.ghost import (
     range_lag_correlation,
 )
 from sonar_realism.diagnose.leakage import LeakageCheck, check_leakage
+from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
 from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     Alternative,
@@ -60,7 +61,15 @@ from sonar_realism.diagnose.scene_terms import SceneTerm, apply_scene_terms, kin
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
-from sonar_realism.sim.effects import BeamSidelobes, Effect, Interference, Multipath, apply_effects, make_effect
+from sonar_realism.sim.effects import (
+    BeamSidelobes,
+    Effect,
+    Interference,
+    Multipath,
+    RingDown,
+    apply_effects,
+    make_effect,
+)
 
 # A gain pattern's smooth part has this many degrees of freedom per axis; channels that stand out from it by more
 # than SPIKE_SIGMA robust deviations (and SPIKE_MIN_DB) keep their own gain: a stripe is one beam wide.
@@ -484,6 +493,25 @@ def signature_check(effect: Effect, problem: SelectionProblem, sim_images: Calla
     return None
 
 
+# effects looked for by their signature alone after the gain check, when the gap did not name them
+SIGNATURE_FINDS = (Interference.name, RingDown.name)
+
+
+def find_by_signature(name: str, problem: SelectionProblem, sim_images: np.ndarray) -> tuple[Effect, str] | None:
+    """Effect `name` (one of SIGNATURE_FINDS) as the real held-out frames' signature of it measures it against the
+    corrected sim frames `sim_images`, with what was found; None when the real frames do not show it. Interference:
+    lines that move, in significantly more real frames (`arcs.find_lines`). Ring-down: a band from the first range
+    bin (`near_field.find_ring_down`)."""
+    real = problem.real_images
+    if real is None:
+        return None
+    if name == Interference.name:
+        lines = find_lines(real, sim_images, problem.real_ranges_m, problem.sim_ranges_m)
+        return (interference_from_lines(real, lines), lines.describe()) if lines.found else None
+    near = find_ring_down(real, sim_images)
+    return (ring_down_from_excess(real, sim_images, problem.ranges_m), near.describe()) if near.found else None
+
+
 def rank_effects(names: Sequence[str], problem: SelectionProblem, config: DiagnoseConfig,
                  progress: Callable[[str], None] | None = None) -> list[Solo]:
     """Every effect fitted alone, then judged on the held-out split; best (smallest gap) first, each with how
@@ -547,7 +575,9 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     Last, when interference is a candidate and not selected, the real held-out frames with a line that moves are
     counted against the corrected sim's (`arcs.find_lines`): significantly more find it, with the parameters the
     lines measure (`arcs.interference_from_lines`), listed in `found`. It comes after the gain check because a
-    gain pattern cannot make lines that move, and the gap, which a few lines barely move, cannot judge it.
+    gain pattern cannot make lines that move, and the gap, which a few lines barely move, cannot judge it. A
+    ring-down not selected is looked for the same way: a band from the first range bin, far above the corrected
+    sim's (`near_field.find_ring_down`), which whole-frame statistics can count against it where the worlds differ.
     """
     c = config
     chosen: list[Effect] = []
@@ -753,17 +783,18 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             progress(f"{effect.name} {why} ({fit.describe()}): not blamed; held-out gap {gap_rest:.4g}")
 
     found: list[Found] = []
-    if (problem.real_images is not None and problem.sim_images is not None and len(chosen) < c.max_effects
-            and any(solo.ranked.name == Interference.name for solo in ranked)
-            and not any(isinstance(e, Interference) for e in chosen)):
-        lines = find_lines(problem.real_images, problem.sim_images(chosen), problem.real_ranges_m,
-                           problem.sim_ranges_m)
-        if lines.found:
-            effect = interference_from_lines(problem.real_images, lines)
-            gap_with, stats_with = holdout([*chosen, effect])
-            found.append(Found(effect.name, effect.params(), lines.describe(), current, gap_with))
-            chosen, current, current_stats = [*chosen, effect], gap_with, stats_with
-            path.append(Step("found", effect.name, gap_with))
-            if progress:
-                progress(f"{effect.name} found by its signature ({lines.describe()}); held-out gap {gap_with:.4g}")
+    names = {solo.ranked.name for solo in ranked}
+    for name in SIGNATURE_FINDS if problem.real_images is not None and problem.sim_images is not None else ():
+        if len(chosen) >= c.max_effects or name not in names or any(e.name == name for e in chosen):
+            continue
+        hit = find_by_signature(name, problem, problem.sim_images(chosen))
+        if hit is None:
+            continue
+        effect, signature = hit
+        gap_with, stats_with = holdout([*chosen, effect])
+        found.append(Found(effect.name, effect.params(), signature, current, gap_with))
+        chosen, current, current_stats = [*chosen, effect], gap_with, stats_with
+        path.append(Step("found", effect.name, gap_with))
+        if progress:
+            progress(f"{effect.name} found by its signature ({signature}); held-out gap {gap_with:.4g}")
     return Selection(chosen, path, stopped, stand_ins, current, current_stats, unconfirmed, found)
