@@ -23,6 +23,7 @@ from sonar_realism.diagnose.gap import (
 )
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.leakage import check_leakage
+from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, write_diagnosis
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import (
@@ -633,6 +634,61 @@ def test_a_band_at_one_range_is_fixed_when_the_range_window_changes_from_ping_to
     at_row[::2, 60:] *= 5.0  # a bright seabed under the band's row in half the frames: its contrast comes and goes
     at_row[:, 70:72] = np.sqrt(at_row[:, 70:72] ** 2 + 0.25)  # an artefact at a fixed sample, whatever the window
     assert not find_lines(at_row, sim, ranges, ranges).found
+
+
+def test_a_ring_down_is_found_from_the_first_bin_and_neither_a_band_further_out_nor_a_gain_ramp_is():
+    frames = sim_frames(12, seed=2)
+    sim = np.stack([f.normalized() for f in sim_frames(12, seed=1)])
+
+    def real(change) -> np.ndarray:
+        return np.stack([change(f.normalized(), f) for f in frames])
+
+    ring = make_effect("ring_down", amplitude=0.3, decay_m=0.12, beam_ripple=0.0)
+    rung = real(lambda x, f: ring.apply(x, f, np.random.default_rng(0)))
+    find = find_ring_down(rung, sim)
+    assert find.found and find.head_db - find.tail_db > 20
+    measured = ring_down_from_excess(rung, sim, frames[0].ranges_m)
+    assert measured.amplitude == pytest.approx(0.3, rel=0.15)
+    assert 0.12 / 1.5 < measured.decay_m < 0.12 * 1.5
+
+    def band(x: np.ndarray, f: SonarImage) -> np.ndarray:  # a housing reflection a few bins out
+        out = x.copy()
+        out[6:9] = np.sqrt(out[6:9] ** 2 + 0.3 ** 2)
+        return out
+
+    ramp = real(lambda x, f: x * (10 ** (np.linspace(0, 1.0, x.shape[0]) / 20))[:, None])  # a TVG error
+    assert not find_ring_down(real(band), sim).found
+    assert not find_ring_down(ramp, sim).found
+    assert not find_ring_down(real(lambda x, f: x), sim).found
+
+
+def test_a_ring_down_the_gap_does_not_name_is_found_by_its_footprint():
+    # The gap cannot credit it (the table: no candidate lowers it), the first rows show it: a found step.
+    frames = sim_frames(8, seed=3)
+    stats = frame_statistics(np.stack([f.normalized() for f in frames]))
+    ring = make_effect("ring_down", amplitude=0.3, decay_m=0.1, beam_ripple=0.0)
+
+    def images(effects) -> np.ndarray:
+        return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
+                         for i, f in enumerate(frames)])
+
+    def holdout(effects, gain=None):
+        return 1.0, None
+
+    def select(real_effects) -> Selection:
+        ranked = [Solo(RankedEffect("ring_down", ring.params(), 1.0, 0.0, 0.0, 1.0), ring, None)]
+        problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, FeatureScale.pooled(stats, stats),
+                                   holdout, None, None, 1.0, frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
+                                   real_images=images(real_effects), sim_images=images)
+        config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
+                                max_effects=2, min_gain=0.05, backfit=False, prune=False, gain_check=False)
+        return greedy_select(ranked, problem, config)
+
+    found = select([ring])
+    assert [(s.action, s.effect) for s in found.path] == [("start", "none"), ("found", "ring_down")]
+    assert found.found[0].params["amplitude"] == pytest.approx(0.3, rel=0.15)
+    assert found.found[0].signature.startswith("a band from the first range bin")
+    assert select([]).path == [Step("start", "none", 1.0)] and select([]).found == []
 
 
 def test_interference_the_gap_does_not_see_is_found_by_its_lines(tmp_path):
