@@ -139,9 +139,9 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                         f"{u.signature}. What it mimicked is a difference of the scene or the set-up (another "
                         "seabed, other objects) or an effect the catalogue lacks: residual.")
                    for u in d.unconfirmed]
-    found = [Text(f"Found by its signature: **{f.effect}** ({f.signature}). The gap barely sees it (held-out gap "
-                  f"{f.gap_without:.3g} without it, {f.gap_with_effect:.3g} with it): its parameters are read off "
-                  "the lines, not fitted to the gap.")
+    found = [Text(f"Found by its signature: **{f.effect}** ({f.signature}). The gap does not credit it (held-out "
+                  f"gap {f.gap_without:.3g} without it, {f.gap_with_effect:.3g} with it): its parameters are read "
+                  "off that signature, not fitted to the gap.")
              for f in d.found]
     pattern = res.gain_pattern
     gain_text = (f"A fixed gain pattern on top of the selected effects closes a further "
