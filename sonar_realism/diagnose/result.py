@@ -236,9 +236,10 @@ class Unconfirmed:
 
 @dataclass(frozen=True)
 class Found:
-    """An effect named by its signature alone, which the gap does not see (`signature`: what was counted): an
+    """An effect named by its signature alone, which the gap does not credit (`signature`: what was found): an
     interference whose lines, a few thin arcs in some pings, move the frames' mean statistics by less than the
-    scenes' own differences. Its parameters are read off the signature, not fitted to the gap;
+    scenes' own differences, or a ring-down whose band at the first range bins the whole-frame statistics count
+    against it where the worlds differ. Its parameters are read off the signature, not fitted to the gap;
     `gap_without` / `gap_with_effect`: the held-out gap before and after it was added (they may differ by noise)."""
 
     effect: str
@@ -290,7 +291,7 @@ class Diagnosis:
     few held-out frames for the bootstrap to separate anything: no ranking). `scene_start`: where the calibration
     put the real setting, when geometry and scene terms were candidates (None: sensor effects only).
     `unconfirmed`: selected effects dropped because the real frames lack their signature (a multipath without its
-    ghost); `found`: effects named by their signature alone (interference lines the gap does not see)."""
+    ghost); `found`: effects named by their signature alone (interference lines, a ring-down's first-bin band)."""
 
     verdict: Verdict
     gap_measure: str
