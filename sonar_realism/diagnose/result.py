@@ -240,7 +240,8 @@ class Found:
     interference whose lines, a few thin arcs in some pings, move the frames' mean statistics by less than the
     scenes' own differences, or a ring-down whose band at the first range bins the whole-frame statistics count
     against it where the worlds differ. Its parameters are read off the signature, not fitted to the gap;
-    `gap_without` / `gap_with_effect`: the held-out gap before and after it was added (they may differ by noise)."""
+    `gap_without` / `gap_with_effect`: the held-out gap before and after it was added (a found ring-down can
+    raise it: the statistics count it against it)."""
 
     effect: str
     params: dict[str, Any]
