@@ -49,20 +49,28 @@ class NearFieldFind:
                 f"dB higher over the corrected sim than a tenth of the window out (a ring-down from {RING_DB:g} dB)")
 
 
+def _frame_row_power(images: np.ndarray) -> np.ndarray:
+    """Each frame's mean power per row over the beams [n, n_ranges]."""
+    return np.mean(images.astype(np.float64) ** 2, axis=2)
+
+
 def row_power_db(images: np.ndarray) -> np.ndarray:
     """Per row, the median over frames of each frame's mean power over beams, in dB."""
-    power = np.mean(images.astype(np.float64) ** 2, axis=2)
-    return np.median(10 * np.log10(power + FLOOR_POWER), axis=0)
+    return np.median(10 * np.log10(_frame_row_power(images) + FLOOR_POWER), axis=0)
 
 
 def _head(n_rows: int) -> int:
     return max(3, n_rows // 32)
 
 
+def _tenth(n_rows: int) -> int:
+    return max(_head(n_rows) + 1, n_rows // 10)
+
+
 def find_ring_down(real_images: np.ndarray, sim_images: np.ndarray) -> NearFieldFind:
     excess = row_power_db(real_images) - row_power_db(sim_images)
     n = excess.size
-    tenth = max(_head(n) + 1, n // 10)
+    tenth = _tenth(n)
     fifth = max(n // 5, tenth + 1)
     return NearFieldFind(head_db=float(excess[:_head(n)].mean()), first_db=float(excess[0]),
                          peak_db=float(excess[:tenth].max()), tail_db=float(np.median(excess[tenth:fifth])))
@@ -74,18 +82,13 @@ def ring_down_from_excess(real_images: np.ndarray, sim_images: np.ndarray, range
     the first tenth of the window (a log grid over the bounds: in dB the tail counts as much as the peak, and a
     shoulder that falls fast is matched by a short decay, not by where it has fallen to). The beam ripple stays the
     catalogue's."""
-    def row_power(images: np.ndarray) -> np.ndarray:
-        return np.median(np.mean(images.astype(np.float64) ** 2, axis=2), axis=0)
-
-    real, sim = row_power(real_images), row_power(sim_images)
+    real, sim = (np.median(_frame_row_power(images), axis=0) for images in (real_images, sim_images))
     bounds = RingDown.PARAM_BOUNDS
-    amplitude = float(min(max(math.sqrt(max(float(real[0] - sim[0]), 0.0)), bounds["amplitude"][0]),
-                          bounds["amplitude"][1]))
-    rows = max(_head(real.size) + 1, real.size // 10)
+    amplitude = float(np.clip(math.sqrt(max(float(real[0] - sim[0]), 0.0)), *bounds["amplitude"]))
+    rows = _tenth(real.size)
     distance = ranges_m[:rows] - ranges_m[0]
     target = 10 * np.log10(real[:rows] + FLOOR_POWER)
     decays = np.geomspace(*bounds["decay_m"], 41)
     errors = [float(np.sum((10 * np.log10(sim[:rows] + amplitude ** 2 * np.exp(-2 * distance / decay) + FLOOR_POWER)
                             - target) ** 2)) for decay in decays]
-    return RingDown(amplitude=amplitude, decay_m=float(decays[int(np.argmin(errors))]),
-                    beam_ripple=RingDown.beam_ripple)
+    return RingDown(amplitude=amplitude, decay_m=float(decays[int(np.argmin(errors))]))

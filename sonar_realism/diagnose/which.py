@@ -784,16 +784,19 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
 
     found: list[Found] = []
     names = {solo.ranked.name for solo in ranked}
+    corrected: np.ndarray | None = None  # the held-out sim frames corrected by `chosen`, made once per set
     for name in SIGNATURE_FINDS if problem.real_images is not None and problem.sim_images is not None else ():
         if len(chosen) >= c.max_effects or name not in names or any(e.name == name for e in chosen):
             continue
-        hit = find_by_signature(name, problem, problem.sim_images(chosen))
+        if corrected is None:
+            corrected = problem.sim_images(chosen)
+        hit = find_by_signature(name, problem, corrected)
         if hit is None:
             continue
         effect, signature = hit
         gap_with, stats_with = holdout([*chosen, effect])
         found.append(Found(effect.name, effect.params(), signature, current, gap_with))
-        chosen, current, current_stats = [*chosen, effect], gap_with, stats_with
+        chosen, current, current_stats, corrected = [*chosen, effect], gap_with, stats_with, None
         path.append(Step("found", effect.name, gap_with))
         if progress:
             progress(f"{effect.name} found by its signature ({signature}); held-out gap {gap_with:.4g}")

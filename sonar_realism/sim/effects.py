@@ -540,7 +540,7 @@ class Multipath(Effect, order=20):
 
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
         power = np.square(intensity, dtype=np.float32)
-        ghosts = np.zeros_like(power)
+        out = power.copy()
         shift_bins = self.ghost_offset_m / _range_bin_m(frame)
         for k in range(1, self.n_ghosts + 1):
             shift = k * shift_bins
@@ -550,11 +550,11 @@ class Multipath(Effect, order=20):
             frac = np.float32(shift - whole)
             scale = np.float32(self.reflection_coeff ** (2 * k))
             # linear interpolation between the two integer shifts keeps sub-bin offsets exact in energy
-            ghosts[..., whole:, :] += scale * (1 - frac) * power[..., :frame.n_ranges - whole, :]
+            out[..., whole:, :] += scale * (1 - frac) * power[..., :frame.n_ranges - whole, :]
             if whole + 1 < frame.n_ranges:
-                ghosts[..., whole + 1:, :] += scale * frac * power[..., :frame.n_ranges - whole - 1, :]
-        out = power + ghosts
-        if self.coherence > 0:  # no draws otherwise: frames without it stay as they were
+                out[..., whole + 1:, :] += scale * frac * power[..., :frame.n_ranges - whole - 1, :]
+        if self.coherence > 0:  # no draws otherwise, and the sum as before: frames without it stay bit for bit
+            ghosts = out - power
             phase = rng.uniform(0.0, 2 * math.pi, size=power.shape).astype(np.float32)
             out += np.float32(2 * self.coherence) * np.sqrt(power * ghosts) * np.cos(phase)
             np.maximum(out, 0.0, out=out)
