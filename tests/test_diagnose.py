@@ -25,6 +25,7 @@ from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.leakage import check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, write_diagnosis
+from sonar_realism.diagnose.smear import check_smear
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import (
     Selection,
@@ -346,6 +347,40 @@ def test_a_multipath_whose_ghost_the_real_frames_lack_gives_way_to_a_rival_that_
     assert [e.name for e in first_step_with_a_rival(ghost, grain, 0.4, ghost).effects] == ["multipath"]
 
 
+def test_between_the_two_blurs_the_axis_of_the_real_smoothing_decides():
+    # A motion blur fitted with its surge is a box along range and can close a range blur's gap best; a range blur
+    # can close a turning platform's. Picked over the other blur, each yields when the real frames are smoothed
+    # along the other's axis, and is kept when they are smoothed along its own. Against any other rival the axis
+    # is not asked.
+    pulse = make_effect("range_blur", resolution_m=0.3, sidelobe_db=-20.0)
+    turning = make_effect("motion_blur", yaw_rate_deg_s=40.0, surge_m_s=0.5, integration_s=0.2)
+    yielded = first_step_with_a_rival(turning, pulse, 0.4, pulse)
+    assert [(s.action, s.effect) for s in yielded.path] == [
+        ("start", "none"), ("unconfirmed", "motion_blur"), ("add", "range_blur")]
+    assert yielded.unconfirmed[0].signature.startswith("a smear as much across the beams")
+    assert [e.name for e in first_step_with_a_rival(turning, pulse, 0.4, turning).effects] == ["motion_blur"]
+    assert [e.name for e in first_step_with_a_rival(pulse, turning, 0.4, turning).effects] == ["motion_blur"]
+    assert [e.name for e in first_step_with_a_rival(pulse, turning, 0.4, pulse).effects] == ["range_blur"]
+    grain = make_effect("speckle", shape_nu=1.5)
+    assert [e.name for e in first_step_with_a_rival(turning, grain, 0.4, pulse).effects] == ["motion_blur"]
+
+
+def test_smear_check_reads_a_surge_alone_as_range_smoothing_and_nothing_as_no_evidence():
+    frames = sim_frames(6, seed=4)
+    clean = np.stack([f.normalized() for f in frames])
+
+    def blurred(effect: Effect) -> np.ndarray:
+        return np.stack([apply_effects(f, [effect], np.random.default_rng(0)).normalized() for f in frames])
+
+    surge = blurred(make_effect("motion_blur", yaw_rate_deg_s=0.0, surge_m_s=2.0, integration_s=0.2))
+    turn = blurred(make_effect("motion_blur", yaw_rate_deg_s=40.0, surge_m_s=0.0, integration_s=0.2))
+    assert check_smear("motion_blur", surge, clean).along_range > 0.3
+    assert not check_smear("motion_blur", surge, clean).confirmed and check_smear("range_blur", surge, clean).confirmed
+    assert check_smear("motion_blur", turn, clean).confirmed and not check_smear("range_blur", turn, clean).confirmed
+    # no smoothing on either axis: nothing to read, no verdict against either blur
+    assert check_smear("motion_blur", clean, clean).confirmed and check_smear("range_blur", clean, clean).confirmed
+
+
 def test_a_gain_is_named_only_if_significantly_at_least_min_gain():
     # Two corrections of the same frames, given by their held-out statistics. The scattered one lowers the gap by
     # 7.5 % of it, but with a per-frame scatter its one-sided lower bound is 1.6 %: above 0 (the old test passed it:
@@ -370,6 +405,42 @@ def test_a_gain_is_named_only_if_significantly_at_least_min_gain():
     scattered = select(0.97, 0.1)
     assert scattered.effects == [] and "not significantly by 5%" in scattered.stopped
     assert [e.name for e in select(0.96, 0.05).effects] == ["tvg_noise"]
+
+
+def test_a_pick_without_its_signature_yields_to_a_rival_it_cannot_be_told_apart_from():
+    # Statistics as in the test above: the pick (a motion blur) lowers the gap significantly; the rival (a range
+    # blur) lowers it nearly as far but, scattered from frame to frame, not significantly by itself. The real
+    # frames are smoothed along range only, so the motion blur lacks its signature, and since it is not told apart
+    # from the range blur (it does better by less than the gain worth naming) the range blur takes its place
+    # with the step's test passed by the pick.
+    target = frame_statistics(np.sqrt(speckled(12, 5)))
+    raw = speckled(12, 6)
+    before = frame_statistics(raw)
+    scale = FeatureScale.pooled(before, target)
+    scatter = np.exp(np.random.default_rng(7).standard_normal(12))[:, None, None]
+    frames = sim_frames(4, seed=3)
+    pulse = make_effect("range_blur", resolution_m=0.3, sidelobe_db=-20.0)
+    turning = make_effect("motion_blur", yaw_rate_deg_s=40.0, surge_m_s=0.5, integration_s=0.2)
+
+    def corrected(power: float, spread: float):
+        return frame_statistics(np.clip(raw ** power * scatter ** spread, 0, 1).astype(np.float32))
+
+    def images(effects) -> np.ndarray:
+        return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
+                         for i, f in enumerate(frames)])
+
+    steady, scattered = corrected(0.96, 0.05), corrected(0.97, 0.1)
+    ranked = [Solo(RankedEffect(e.name, e.params(), gap(stats, target, scale), 0.0, 0.0, 0.5), e, stats)
+              for e, stats in ((turning, steady), (pulse, scattered))]
+    problem = SelectionProblem(frames, target, (np.zeros((128, 128)),) * 2, scale, None, target, before,
+                               gap(before, target, scale), frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
+                               real_images=images([pulse]), sim_images=images)
+    chosen = greedy_select(ranked, problem, DiagnoseConfig(max_effects=1, prune=False, gain_check=False))
+    assert [(s.action, s.effect) for s in chosen.path] == [
+        ("start", "none"), ("unconfirmed", "motion_blur"), ("add", "range_blur")]
+    # the rival alone would not have been named
+    alone = greedy_select(ranked[1:], problem, DiagnoseConfig(max_effects=1, prune=False, gain_check=False))
+    assert alone.effects == [] and "not significantly by 5%" in alone.stopped
 
 
 def test_a_ring_down_fit_tries_long_decays_before_switching_it_off():
@@ -660,6 +731,19 @@ def test_a_ring_down_is_found_from_the_first_bin_and_neither_a_band_further_out_
     assert not find_ring_down(real(band), sim).found
     assert not find_ring_down(ramp, sim).found
     assert not find_ring_down(real(lambda x, f: x), sim).found
+
+
+def test_a_ring_down_whose_receiver_recovers_is_found_though_dimmer_at_the_first_bin():
+    # The Oculus recordings' near-field band: lit at the first bin, but brighter a few bins out, where the receiver
+    # has recovered from the transmit blanking (the first-bin start test alone took it for a band further out).
+    frames = sim_frames(12, seed=2)
+    sim = np.stack([f.normalized() for f in sim_frames(12, seed=1)])
+    distance = frames[0].ranges_m - frames[0].ranges_m[0]
+    leak = 0.3 * np.exp(-distance / 0.5) * (1 - 0.8 * np.exp(-distance / 0.2))
+    recovering = np.stack([np.sqrt(f.normalized() ** 2 + leak[:, None] ** 2) for f in frames])
+    find = find_ring_down(recovering, sim)
+    assert find.first_db < find.peak_db - 3 and find.peak_in_head
+    assert find.found
 
 
 def test_a_ring_down_the_gap_does_not_name_is_found_by_its_footprint():

@@ -223,9 +223,10 @@ class Unconfirmed:
     and what was measured): a multipath whose ghost copy of each frame's scene is not there, an interference whose
     bright rows sit at the same ranges in every frame (a fixed band), sidelobes whose fitted form lifts the dark
     beams of bright rows where the real frames' are not lifted (a noise floor, a yaw smear). What it closed of the
-    gap is a difference of the world, the set-up or an un-catalogued effect, not this effect. Sidelobes that fail
-    theirs when picked give way to their step's runner-up (`gap_with_effect`: what they would have left;
-    `gap_without`: what the runner-up leaves)."""
+    gap is a difference of the world, the set-up or an un-catalogued effect, not this effect. An effect that fails
+    its check when picked gives way to its step's runner-up (`gap_with_effect`: what it would have left;
+    `gap_without`: what the runner-up leaves); between the two blurs the check is the axis of the real frames'
+    smoothing (a motion blur whose smoothing runs along range alone is a range blur)."""
 
     effect: str
     params: dict[str, Any]
