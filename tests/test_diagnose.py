@@ -381,21 +381,32 @@ def test_smear_check_reads_a_surge_alone_as_range_smoothing_and_nothing_as_no_ev
     assert check_smear("motion_blur", clean, clean).confirmed and check_smear("range_blur", clean, clean).confirmed
 
 
+def scattered_corrections():
+    """Held-out statistics of a target, of the frames before correction, their scale, and `corrected(power,
+    spread)`: the statistics of a correction that lowers the gap more with a lower `power`, scattered from frame to
+    frame by `spread`."""
+    target = frame_statistics(np.sqrt(speckled(12, 5)))
+    raw = speckled(12, 6)
+    before = frame_statistics(raw)
+    scatter = np.exp(np.random.default_rng(7).standard_normal(12))[:, None, None]
+
+    def corrected(power: float, spread: float):
+        return frame_statistics(np.clip(raw ** power * scatter ** spread, 0, 1).astype(np.float32))
+
+    return target, before, FeatureScale.pooled(before, target), corrected
+
+
 def test_a_gain_is_named_only_if_significantly_at_least_min_gain():
     # Two corrections of the same frames, given by their held-out statistics. The scattered one lowers the gap by
     # 7.5 % of it, but with a per-frame scatter its one-sided lower bound is 1.6 %: above 0 (the old test passed it:
     # a world difference that an effect mimics a little) but below the 5 % worth naming. The steadier one (11.6 %,
     # lower bound 8.9 %) is named.
-    target = frame_statistics(np.sqrt(speckled(12, 5)))
-    raw = speckled(12, 6)
-    before = frame_statistics(raw)
-    scale = FeatureScale.pooled(before, target)
-    scatter = np.exp(np.random.default_rng(7).standard_normal(12))[:, None, None]
+    target, before, scale, corrected = scattered_corrections()
     frames = sim_frames(2, seed=3)
     effect = make_effect("tvg_noise")
 
     def select(power: float, spread: float):
-        after = frame_statistics(np.clip(raw ** power * scatter ** spread, 0, 1).astype(np.float32))
+        after = corrected(power, spread)
         ranked = [Solo(RankedEffect("tvg_noise", effect.params(), gap(after, target, scale), 0.0, 0.0, 1.0), effect,
                        after)]
         problem = SelectionProblem(frames, target, (np.zeros((128, 128)),) * 2, scale, None, target, before,
@@ -413,17 +424,10 @@ def test_a_pick_without_its_signature_yields_to_a_rival_it_cannot_be_told_apart_
     # frames are smoothed along range only, so the motion blur lacks its signature, and since it is not told apart
     # from the range blur (it does better by less than the gain worth naming) the range blur takes its place
     # with the step's test passed by the pick.
-    target = frame_statistics(np.sqrt(speckled(12, 5)))
-    raw = speckled(12, 6)
-    before = frame_statistics(raw)
-    scale = FeatureScale.pooled(before, target)
-    scatter = np.exp(np.random.default_rng(7).standard_normal(12))[:, None, None]
+    target, before, scale, corrected = scattered_corrections()
     frames = sim_frames(4, seed=3)
     pulse = make_effect("range_blur", resolution_m=0.3, sidelobe_db=-20.0)
     turning = make_effect("motion_blur", yaw_rate_deg_s=40.0, surge_m_s=0.5, integration_s=0.2)
-
-    def corrected(power: float, spread: float):
-        return frame_statistics(np.clip(raw ** power * scatter ** spread, 0, 1).astype(np.float32))
 
     def images(effects) -> np.ndarray:
         return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
