@@ -24,7 +24,8 @@ from sonar_realism.diagnose.gap import (
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.leakage import check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
-from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, write_diagnosis
+from sonar_realism.diagnose.report import sections, write_figures
+from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, Unconfirmed, write_diagnosis
 from sonar_realism.diagnose.smear import check_smear
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import (
@@ -40,6 +41,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
+from sonar_realism.report_html import Text
 from sonar_realism.sim import SensorConfig, simulate
 from sonar_realism.sim.effects import Effect, RingDown, apply_effects, make_effect
 
@@ -358,6 +360,7 @@ def test_between_the_two_blurs_the_axis_of_the_real_smoothing_decides():
     assert [(s.action, s.effect) for s in yielded.path] == [
         ("start", "none"), ("unconfirmed", "motion_blur"), ("add", "range_blur")]
     assert yielded.unconfirmed[0].signature.startswith("a smear as much across the beams")
+    assert yielded.unconfirmed[0].named_instead == "range_blur"
     assert [e.name for e in first_step_with_a_rival(turning, pulse, 0.4, turning).effects] == ["motion_blur"]
     assert [e.name for e in first_step_with_a_rival(pulse, turning, 0.4, turning).effects] == ["motion_blur"]
     assert [e.name for e in first_step_with_a_rival(pulse, turning, 0.4, pulse).effects] == ["range_blur"]
@@ -490,6 +493,23 @@ def test_cli_writes_diagnosis_json_and_report(tmp_path):
     page = (tmp_path / "out" / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 8 and "gamma_quantization" in page
     assert 'src="diag_' not in page  # self-contained: nothing linked beside it
+    # a pick passed over for its step's runner-up reads as such; one dropped after selection leaves its part residual
+    passed = Unconfirmed("motion_blur", {}, "a smear as much across the beams as along range", 0.2, 0.21,
+                         named_instead="range_blur")
+    dropped = Unconfirmed("multipath", {}, "a ghost", 0.2, 0.3)
+    both = dataclasses.replace(loaded, unconfirmed=(passed, dropped))
+    texts = [item.text for section in sections(both, write_figures(both, tmp_path)) for item in section.items
+             if isinstance(item, Text)]
+    assert any(t.startswith("Passed over: **motion_blur**") and "range_blur is named in its place" in t
+               for t in texts)
+    assert any(t.startswith("Not blamed: **multipath**") and "residual" in t for t in texts)
+    # what was named instead travels in diagnosis.json; a file written before the key existed still reads
+    written = write_diagnosis(both, tmp_path / "both.json")
+    assert load_diagnosis(written).unconfirmed == (passed, dropped)
+    older = json.loads(written.read_text())
+    del older["unconfirmed"][0]["named_instead"]
+    (tmp_path / "older.json").write_text(json.dumps(older))
+    assert load_diagnosis(tmp_path / "older.json").unconfirmed[0].named_instead == ""
 
 
 def test_bad_input_says_what_is_needed(tmp_path, capsys):

@@ -224,8 +224,8 @@ class Unconfirmed:
     bright rows sit at the same ranges in every frame (a fixed band), sidelobes whose fitted form lifts the dark
     beams of bright rows where the real frames' are not lifted (a noise floor, a yaw smear). What it closed of the
     gap is a difference of the world, the set-up or an un-catalogued effect, not this effect. An effect that fails
-    its check when picked gives way to its step's runner-up (`gap_with_effect`: what it would have left;
-    `gap_without`: what the runner-up leaves); between the two blurs the check is the axis of the real frames'
+    its check when picked gives way to its step's runner-up (`named_instead`; `gap_with_effect`: what it would have
+    left; `gap_without`: what the runner-up leaves); between the two blurs the check is the axis of the real frames'
     smoothing (a motion blur whose smoothing runs along range alone is a range blur)."""
 
     effect: str
@@ -233,6 +233,7 @@ class Unconfirmed:
     signature: str
     gap_with_effect: float
     gap_without: float
+    named_instead: str = ""
 
 
 @dataclass(frozen=True)

@@ -690,7 +690,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if yielded is not None:
             rival, signature, (gain, lower) = yielded
             unconfirmed.append(Unconfirmed(best_name, best_effect.params(), signature.describe(), best_gap,
-                                           rival[0]))
+                                           rival[0], named_instead=rival[3].ranked.name))
             path.append(Step("unconfirmed", best_name, current))
             remaining = [solo for solo in remaining if solo.ranked.name != best_name]
             if progress:
