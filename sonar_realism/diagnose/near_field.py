@@ -40,19 +40,23 @@ FLOOR_POWER = 1e-6
 class NearFieldFind:
     """The real frames' excess row power over the corrected sim's, in dB: the mean over the first rows
     (`head_db`, 1/32 of the window), at the first bin (`first_db`), the largest in the first tenth (`peak_db`,
-    `peak_in_head`: within the first rows) and the median at a tenth to a fifth of the window (`tail_db`)."""
+    `peak_in_head`: within the first rows) and the median at a tenth to a fifth of the window (`tail_db`); and how
+    far the added power itself (real minus sim, linear) falls from the first rows to there (`added_fall_db`). A
+    noise floor over a dark near field has a large excess in dB there, but it adds about as much power in every row
+    (more far out under a TVG); a ring-down adds it in the first rows."""
 
     head_db: float
     first_db: float
     peak_db: float
     tail_db: float
     peak_in_head: bool = False
+    added_fall_db: float = math.inf
 
     @property
     def found(self) -> bool:
         starts_at_first_bin = (self.first_db >= self.peak_db - START_DB
                                or (self.peak_in_head and self.first_db - self.tail_db >= LIT_DB))
-        return self.head_db - self.tail_db >= RING_DB and starts_at_first_bin
+        return self.head_db - self.tail_db >= RING_DB and starts_at_first_bin and self.added_fall_db >= RING_DB
 
     def describe(self) -> str:
         return (f"a band from the first range bin: the real frames' first rows stand {self.head_db - self.tail_db:.1f} "
@@ -82,9 +86,15 @@ def find_ring_down(real_images: np.ndarray, sim_images: np.ndarray) -> NearField
     n = excess.size
     tenth = _tenth(n)
     fifth = max(n // 5, tenth + 1)
+    added = np.median(_frame_row_power(real_images), axis=0) - np.median(_frame_row_power(sim_images), axis=0)
+    added_head, added_tail = float(added[:_head(n)].mean()), float(np.median(added[tenth:fifth]))
+    if added_head <= 0:
+        fall_db = -math.inf
+    else:
+        fall_db = 10 * math.log10(added_head / added_tail) if added_tail > 0 else math.inf
     return NearFieldFind(head_db=float(excess[:_head(n)].mean()), first_db=float(excess[0]),
                          peak_db=float(excess[:tenth].max()), tail_db=float(np.median(excess[tenth:fifth])),
-                         peak_in_head=int(np.argmax(excess[:tenth])) < _head(n))
+                         peak_in_head=int(np.argmax(excess[:tenth])) < _head(n), added_fall_db=fall_db)
 
 
 def ring_down_from_excess(real_images: np.ndarray, sim_images: np.ndarray, ranges_m: np.ndarray) -> RingDown:
