@@ -755,6 +755,13 @@ def test_a_ring_down_is_found_from_the_first_bin_and_neither_a_band_further_out_
     assert not find_ring_down(real(band), sim).found
     assert not find_ring_down(ramp, sim).found
     assert not find_ring_down(real(lambda x, f: x), sim).found
+    # a weak noise floor over a dark near field stands out in dB there, but adds as much power everywhere
+    draw = np.random.default_rng(5)
+    seabed = draw.rayleigh(0.3, (12, 128, 128))
+    seabed[:, :10] = 0.0  # the water column
+    misread = find_ring_down(np.sqrt(seabed ** 2 + draw.rayleigh(0.02, seabed.shape) ** 2), seabed)
+    assert misread.head_db - misread.tail_db > 6 and misread.first_db >= misread.peak_db - 3  # the dB test alone
+    assert abs(misread.added_fall_db) < 3 and not misread.found
 
 
 def test_a_ring_down_whose_receiver_recovers_is_found_though_dimmer_at_the_first_bin():
