@@ -68,9 +68,9 @@ def _frame_row_power(images: np.ndarray) -> np.ndarray:
     return np.mean(images.astype(np.float64) ** 2, axis=2)
 
 
-def row_power_db(images: np.ndarray) -> np.ndarray:
-    """Per row, the median over frames of each frame's mean power over beams, in dB."""
-    return np.median(10 * np.log10(_frame_row_power(images) + FLOOR_POWER), axis=0)
+def _median_db(frame_rows: np.ndarray) -> np.ndarray:
+    """Per row, the median over frames of each frame's row power (`_frame_row_power`), in dB."""
+    return np.median(10 * np.log10(frame_rows + FLOOR_POWER), axis=0)
 
 
 def _head(n_rows: int) -> int:
@@ -82,11 +82,12 @@ def _tenth(n_rows: int) -> int:
 
 
 def find_ring_down(real_images: np.ndarray, sim_images: np.ndarray) -> NearFieldFind:
-    excess = row_power_db(real_images) - row_power_db(sim_images)
+    real_rows, sim_rows = _frame_row_power(real_images), _frame_row_power(sim_images)
+    excess = _median_db(real_rows) - _median_db(sim_rows)
     n = excess.size
     tenth = _tenth(n)
     fifth = max(n // 5, tenth + 1)
-    added = np.median(_frame_row_power(real_images), axis=0) - np.median(_frame_row_power(sim_images), axis=0)
+    added = np.median(real_rows, axis=0) - np.median(sim_rows, axis=0)
     added_head, added_tail = float(added[:_head(n)].mean()), float(np.median(added[tenth:fifth]))
     if added_head <= 0:
         fall_db = -math.inf

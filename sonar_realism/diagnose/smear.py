@@ -49,10 +49,6 @@ class SmearCheck:
     across_beams: float
 
     @property
-    def across_share(self) -> float:
-        return self.across_beams / self.along_range if self.along_range > 0 else math.inf
-
-    @property
     def confirmed(self) -> bool:
         if max(self.along_range, self.across_beams) < LEAST_SMOOTHING:
             return True
