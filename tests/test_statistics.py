@@ -8,10 +8,12 @@ from sonar_realism.evaluate.statistics import (
     FAMILIES,
     StatisticsConfig,
     as_float_batch,
+    brightest,
     feature_names,
     frame_statistics,
     level_histograms,
     octave_band_edges,
+    patch_moments,
 )
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 
@@ -99,3 +101,29 @@ def test_bad_input_is_refused_with_what_is_needed():
     with pytest.raises(ConfigError, match="different shapes"):
         as_float_batch([SonarImage(np.zeros((128, 128), np.uint8), ranges, azimuths),
                         SonarImage(np.zeros((64, 128), np.uint8), ranges[:64], azimuths)])
+
+
+def test_brightest_finds_the_largest_values_and_spreads_a_tie_for_the_last_place_the_same_way_every_time():
+    rng = np.random.default_rng(3)
+    frames = (rng.integers(0, 40, (4, 300 * 64)) / 255).astype(np.float32)  # 8-bit: ties everywhere
+    frames[0, 5000:5100] = 1.0  # a saturated run: 100 pixels tied for the top, 32 wanted
+    top = brightest(frames, 32)
+    for row, picked in zip(frames, top, strict=True):
+        assert len(set(picked.tolist())) == 32
+        np.testing.assert_array_equal(np.sort(row[picked]), np.sort(row)[-32:])
+    assert top[0].min() == 5000 and top[0].max() == 5099  # spread over the tie, not its first 32
+    np.testing.assert_array_equal(top, brightest(frames.copy(), 32))
+    small = frames[:, :100]  # fewer pixels than the blocks need: the same answer without them
+    picked = small[1][brightest(small, 5)[1]]
+    np.testing.assert_array_equal(np.sort(picked), np.sort(small[1])[-5:])
+
+
+def test_patch_moments_are_the_tiles_own_mean_std_and_fourth_moment_ratio():
+    rng = np.random.default_rng(4)
+    images = rng.random((2, 19, 27), dtype=np.float32)  # not whole tiles: the edge is left out
+    mean, std, ratio = patch_moments(images, 8)
+    tile = images[1, 8:16, 16:24].astype(np.float64)
+    assert mean.shape == (2, 2, 3)
+    assert mean[1, 1, 2] == pytest.approx(tile.mean(), rel=1e-5)
+    assert std[1, 1, 2] == pytest.approx(tile.std(), rel=1e-4)
+    assert ratio[1, 1, 2] == pytest.approx((tile ** 4).mean() / (tile ** 2).mean() ** 2, rel=1e-4)
