@@ -35,8 +35,9 @@ class DiagnoseConfig:
     (those of the fit split whose mean statistics are closest to the split's, among up to eval_frames of it);
     eval_frames / real_frames: cap on held-out sim / real frames per measurement (cost grows with them);
     max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
-    gap before to be selected); significance: one-sided level of the paired bootstrap test an effect's gain must
-    pass to be selected (0 = no test); backfit: refit the chosen effects around each new candidate;
+    gap before to be selected; effects found by their signature alone come on top of max_effects);
+    significance: one-sided level of the paired bootstrap test an effect's gain must pass to be selected
+    (0 = no test); backfit: refit the chosen effects around each new candidate;
     prune: after forward selection, drop effects the others make redundant; gain_check: drop selected effects
     that do no better than a fixed per-range and per-beam gain pattern; effects: the candidates (empty = the
     whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets

@@ -806,8 +806,10 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     found: list[Found] = []
     names = {solo.ranked.name for solo in ranked}
     corrected: np.ndarray | None = None  # the held-out sim frames corrected by `chosen`, made once per set
+    # max_effects caps what the gap selects, not what the real frames show: a last place taken by a stand-in at
+    # its bounds must not hide a signature the real frames carry
     for name in SIGNATURE_FINDS if problem.real_images is not None and problem.sim_images is not None else ():
-        if len(chosen) >= c.max_effects or name not in names or any(e.name == name for e in chosen):
+        if name not in names or any(e.name == name for e in chosen):
             continue
         if corrected is None:
             corrected = problem.sim_images(chosen)
