@@ -790,13 +790,13 @@ def test_a_ring_down_the_gap_does_not_name_is_found_by_its_footprint():
     def holdout(effects, gain=None):
         return 1.0, None
 
-    def select(real_effects) -> Selection:
+    def select(real_effects, max_effects: int = 2) -> Selection:
         ranked = [Solo(RankedEffect("ring_down", ring.params(), 1.0, 0.0, 0.0, 1.0), ring, None)]
         problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, FeatureScale.pooled(stats, stats),
                                    holdout, None, None, 1.0, frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
                                    real_images=images(real_effects), sim_images=images)
         config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
-                                max_effects=2, min_gain=0.05, backfit=False, prune=False, gain_check=False)
+                                max_effects=max_effects, min_gain=0.05, backfit=False, prune=False, gain_check=False)
         return greedy_select(ranked, problem, config)
 
     found = select([ring])
@@ -804,6 +804,8 @@ def test_a_ring_down_the_gap_does_not_name_is_found_by_its_footprint():
     assert found.found[0].params["amplitude"] == pytest.approx(0.3, rel=0.15)
     assert found.found[0].signature.startswith("a band from the first range bin")
     assert select([]).path == [Step("start", "none", 1.0)] and select([]).found == []
+    # max_effects caps what the gap selects, not what the real frames show
+    assert [s.effect for s in select([ring], max_effects=0).found] == ["ring_down"]
 
 
 def test_interference_the_gap_does_not_see_is_found_by_its_lines(tmp_path):
