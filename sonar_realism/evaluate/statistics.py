@@ -172,7 +172,7 @@ def patch_moments(images: np.ndarray, patch: int) -> tuple[np.ndarray, np.ndarra
     mean, second, fourth = (np.empty((n, rows, cols), dtype=np.float32) for _ in range(3))
     # an area resize by a whole factor is the tiles' mean, about 7x faster than a mean over two axes of a 5-D view
     # (the diagnosis computes these for every candidate fit)
-    for i, image in enumerate(images[:, :rows * patch, :cols * patch]):
+    for i, image in enumerate(images[:, :rows * patch, :cols * patch] if rows and cols else ()):
         image = np.ascontiguousarray(image, dtype=np.float32)
         square = image * image
         for moment, values in ((mean, image), (second, square), (fourth, square * square)):
