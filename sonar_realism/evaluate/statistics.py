@@ -249,11 +249,11 @@ def brightest(flat: np.ndarray, count: int, block: int = 64) -> np.ndarray:
     for i, (values, floor) in enumerate(zip(flat, floors, strict=True)):
         candidates = np.flatnonzero(values >= floor)
         above = values[candidates]
-        last = np.partition(above, -count)[-count]
-        if np.count_nonzero(above >= last) > count:
+        in_top = above >= np.partition(above, -count)[-count]
+        if np.count_nonzero(in_top) > count:
             top[i] = np.argpartition(values, -count)[-count:]
         else:
-            top[i] = candidates[above >= last]
+            top[i] = candidates[in_top]
     return top
 
 
