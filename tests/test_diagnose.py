@@ -43,9 +43,10 @@ from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
 from sonar_realism.report_html import Text
 from sonar_realism.sim import SensorConfig, simulate
-from sonar_realism.sim.effects import Effect, RingDown, apply_effects, make_effect
+from sonar_realism.sim.effects import BeamSidelobes, Effect, RingDown, apply_effects, make_effect
 
 SENSOR = SensorConfig(n_ranges=128, n_beams=128, max_range_m=10.0, elevation_rays=16)
+PEDESTAL_OFF = BeamSidelobes.PARAM_BOUNDS["crosstalk_db"][0]
 FAST = DiagnoseConfig(fit_frames=4, eval_frames=8, bootstrap=30, search=SearchConfig(points=4, rounds=1))
 
 
@@ -292,9 +293,11 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
     assert [e.name for e in kept.effects] == ["motion_blur", "beam_sidelobes"]
 
 
-def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_effect: Effect) -> Selection:
+def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_effect: Effect,
+                            without_pedestal_gap: float = 0.6) -> Selection:
     """One selection step on 8 sim frames whose held-out objective is a table: `pick` closes 70 % of the gap,
-    `rival` leaves `rival_gap`; the real frames are the sim's with `real_effect`, for the signature checks."""
+    `rival` leaves `rival_gap`, sidelobes with their cross-talk pedestal off leave `without_pedestal_gap`; the
+    real frames are the sim's with `real_effect`, for the signature checks."""
     frames = sim_frames(8, seed=3)
     stats = frame_statistics(np.stack([f.normalized() for f in frames]))
     scale = FeatureScale.pooled(stats, stats)
@@ -306,6 +309,8 @@ def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_
     table = {(): 1.0, (pick.name,): 0.3, (rival.name,): rival_gap}
 
     def holdout(effects, gain=None):
+        if any(isinstance(e, BeamSidelobes) and e.crosstalk_db <= PEDESTAL_OFF for e in effects):
+            return without_pedestal_gap, None
         return table.get(tuple(sorted(e.name for e in effects)), 0.29), None
 
     ranked = [Solo(RankedEffect(pick.name, pick.params(), 0.3, 0.0, 0.7, 1.0), pick, None),
@@ -333,6 +338,26 @@ def test_sidelobes_whose_leakage_the_real_frames_lack_give_way_to_a_rival_that_e
     assert [e.name for e in first_step_with_a_rival(sidelobes, floor, 0.4, sidelobes).effects] == ["beam_sidelobes"]
     # the rival closes too little
     assert [e.name for e in first_step_with_a_rival(sidelobes, floor, 0.98, floor).effects] == ["beam_sidelobes"]
+
+
+def test_sidelobes_whose_pedestal_the_real_frames_lack_are_refitted_without_it_and_named():
+    # The fit took a strong cross-talk pedestal; the real frames have near sidelobes but no pedestal, so the
+    # pedestal fails the leakage check. Refitted without it the sidelobes still beat the rival and are named, the
+    # pedestal recorded as unconfirmed; where the refit closes less than the rival, the rival is named.
+    fitted = make_effect("beam_sidelobes", sidelobe_db=-12.0, crosstalk_db=-20.0)
+    real = make_effect("beam_sidelobes", sidelobe_db=-12.0, crosstalk_db=PEDESTAL_OFF)
+    floor = make_effect("tvg_noise", noise_amplitude=0.15)
+    held = first_step_with_a_rival(fitted, floor, 0.5, real, without_pedestal_gap=0.35)
+    assert [e.name for e in held.effects] == ["beam_sidelobes"]
+    assert held.effects[0].crosstalk_db == PEDESTAL_OFF
+    assert held.path[-1].gap == 0.35
+    assert [(u.effect, u.named_instead, u.params["crosstalk_db"]) for u in held.unconfirmed] == [
+        ("beam_sidelobes", "beam_sidelobes", -20.0)]
+    assert held.unconfirmed[0].signature.startswith("leakage along the row")
+    assert [e.name for e in first_step_with_a_rival(fitted, floor, 0.5, real, 0.55).effects] == ["tvg_noise"]
+    # real frames that show the pedestal keep it
+    kept = first_step_with_a_rival(fitted, floor, 0.5, fitted, without_pedestal_gap=0.35)
+    assert kept.effects[0].crosstalk_db == -20.0 and not kept.unconfirmed
 
 
 def test_a_multipath_whose_ghost_the_real_frames_lack_gives_way_to_a_rival_that_explains_the_gap():

@@ -134,7 +134,11 @@ def sections(diagnosis: Diagnosis, figures: dict[str, Path]) -> list[Section]:
                       f"pattern against {s.gap_with_effect:.3g} with the effect, so its part of the gap is left in the "
                       "residual: a gain pattern the catalogue lacks, or the sim's intensity scale.")
                  for s in d.gain_stand_ins]
-    unconfirmed = [Text(f"Passed over: **{u.effect}** closed the gap furthest at its step (held-out gap "
+    unconfirmed = [Text(f"Held to its signature: **{u.effect}** as first fitted ({_params(u.params)}; held-out gap "
+                        f"{u.gap_with_effect:.3g}) has a cross-talk pedestal the real frames do not show, "
+                        f"{u.signature}; it competed refitted without it ({u.gap_without:.3g}).")
+                   if u.named_instead == u.effect else
+                   Text(f"Passed over: **{u.effect}** closed the gap furthest at its step (held-out gap "
                         f"{u.gap_with_effect:.3g} with it, {u.gap_without:.3g} with **{u.named_instead}**), but the "
                         f"real frames lack its signature, {u.signature}. {u.named_instead} is named in its place."
                         if u.named_instead else

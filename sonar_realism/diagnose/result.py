@@ -226,7 +226,9 @@ class Unconfirmed:
     gap is a difference of the world, the set-up or an un-catalogued effect, not this effect. An effect that fails
     its check when picked gives way to its step's runner-up (`named_instead`; `gap_with_effect`: what it would have
     left; `gap_without`: what the runner-up leaves); between the two blurs the check is the axis of the real frames'
-    smoothing (a motion blur whose smoothing runs along range alone is a range blur)."""
+    smoothing (a motion blur whose smoothing runs along range alone is a range blur). Sidelobes whose fitted
+    cross-talk pedestal fails the leakage check are refitted without it and compete so (`named_instead` is then
+    the effect itself; `gap_without`: what the refit leaves)."""
 
     effect: str
     params: dict[str, Any]

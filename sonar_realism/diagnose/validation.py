@@ -172,7 +172,7 @@ def alt_beam_sidelobes(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng:
     step = float(np.median(np.diff(np.sin(frame.azimuths_rad))))
     offsets = np.arange(-(frame.n_beams - 1), frame.n_beams) * step
     ideal = _sampled_pattern(weights, math.sin(math.radians(p["mainlobe_deg"])), offsets)
-    # leakage into each beam, relative to the row's mean power (as the catalogue defines crosstalk_db)
+    # leakage into each beam, relative to the row's mean power (this form's own scale, not the catalogue's)
     floor_target = 10 ** (p["crosstalk_db"] / 10) * ideal.sum() / frame.n_beams
     noisy = _sampled_pattern(weights + 0.05 * errors, math.sin(math.radians(p["mainlobe_deg"])), offsets)
     far = np.abs(offsets) > 8 * math.sin(math.radians(p["mainlobe_deg"]))

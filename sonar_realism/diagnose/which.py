@@ -13,7 +13,8 @@ selected multipath must then show its ghost in the real frames (diagnose/ghost.p
 arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Effects are also held to
 their signature while they are picked: a pick whose signature the real frames lack gives way to the runner-up of
 its step when that passes the step's tests by itself. Fitted at their strongest, sidelobes stand in for a noise
-floor or a yaw smear (their signature: the dark beams of bright rows lifted, diagnose/leakage.py), and a multipath
+floor or a yaw smear (their signature: the dark beams of bright rows lifted, diagnose/leakage.py; sidelobes whose
+cross-talk pedestal the real frames lack are first refitted without it), and a multipath
 whose ghosts interfere with the direct return stands in for speckle (its signature: the ghost). Between a range blur
 and a motion blur, the axis of the real frames' smoothing decides (diagnose/smear.py). Last,
 each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
@@ -178,10 +179,11 @@ def normalize_image(image: np.ndarray, how: str) -> np.ndarray:
 def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: FeatureScale,
                base: Sequence[Effect] = (), start: Effect | None = None, search: SearchConfig | None = None,
                statistics: StatisticsConfig | None = None, normalize: str = "none",
-               alternatives: Sequence[Effect] = ()) -> Fit:
+               alternatives: Sequence[Effect] = (), fixed: Sequence[str] = ()) -> Fit:
     """Parameters of effect `name` that, applied to `frames` after/with the `base` effects, bring their
     statistics closest to `target`. The search starts from `start` (default: the catalogue's values; a geometry
-    or scene term always comes with its start) or from whichever of `alternatives` fits better there."""
+    or scene term always comes with its start) or from whichever of `alternatives` fits better there; the
+    `fixed` parameters keep their values in `start`."""
     statistics = statistics or StatisticsConfig()
     search = search or SearchConfig()
 
@@ -190,7 +192,8 @@ def fit_effect(name: str, frames: Sequence[SonarImage], target: Stats, scale: Fe
                    target, scale)
 
     start = start if start is not None else make_effect(name)
-    best, score, evaluations = coordinate_search(start, type(start).PARAM_BOUNDS, objective, search, alternatives)
+    bounds = {k: v for k, v in type(start).PARAM_BOUNDS.items() if k not in fixed}
+    best, score, evaluations = coordinate_search(start, bounds, objective, search, alternatives)
     return Fit(best, score, evaluations)
 
 
@@ -497,6 +500,9 @@ def signature_check(effect: Effect, problem: SelectionProblem, sim_images: Calla
     return None
 
 
+# the sidelobes' parameter whose lift of a bright row's dark beams the leakage check tests
+PEDESTAL = "crosstalk_db"
+
 # effects looked for by their signature alone after the gain check, when the gap did not name them
 SIGNATURE_FINDS = (Interference.name, RingDown.name)
 
@@ -622,6 +628,32 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         return bootstrap_gain(worse, better, problem.target, problem.scale, c.bootstrap, c.significance,
                               seed=c.seed + draw)
 
+    def held_to_leakage(trial: Trial) -> Trial:
+        """A step's pick of sidelobes whose cross-talk pedestal lifts the dark beams of bright rows where the real
+        frames' are not lifted (diagnose/leakage.py), refitted with the pedestal off: a pedestal fitted to some
+        other difference (a texture, a floor) must not cost the sidelobes the real frames do show their place.
+        The refit competes in the step as the sidelobes' trial and, picked, is held to the same check
+        (`signature_yield`)."""
+        gap_with, base, effect, solo, _ = trial
+        off = BeamSidelobes.PARAM_BOUNDS[PEDESTAL][0]
+        if (not isinstance(effect, BeamSidelobes) or getattr(effect, PEDESTAL) <= off
+                or problem.real_images is None or problem.sim_images is None):
+            return trial
+        check = check_leakage(problem.real_images, problem.sim_images(base), problem.sim_images([*base, effect]))
+        if check.confirmed:
+            return trial
+        refitted = fit_effect(effect.name, problem.fit_frames, problem.fit_target, problem.scale, base=base,
+                              start=dataclasses.replace(effect, **{PEDESTAL: off}), search=c.search,
+                              statistics=c.statistics, normalize=c.normalize, fixed=(PEDESTAL,)).effect
+        gap_without, stats = holdout([*base, refitted])
+        unconfirmed.append(Unconfirmed(effect.name, effect.params(), check.describe(), gap_with, gap_without,
+                                       named_instead=effect.name))
+        path.append(Step("unconfirmed", effect.name, current))
+        if progress:
+            progress(f"{effect.name}: the real frames lack the leakage its cross-talk pedestal predicts "
+                     f"({check.describe()}): refitted without it, held-out gap {gap_with:.4g} -> {gap_without:.4g}")
+        return gap_without, base, refitted, solo, stats
+
     def signature_yield(pick: Effect, pick_stats: Stats | None, pick_test: tuple[float, float], base: list[Effect],
                         runner_up: list[Trial]) -> tuple[Trial, SignatureCheck, tuple[float, float]] | None:
         """A pick whose signature the real frames lack gives way to the runner-up of its step if that passes the
@@ -679,6 +711,15 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
             trials = [(solo.ranked.gap_after, [], solo.effect, solo, solo.stats) for solo in remaining[:2]]
             candidates = [(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency, s.stats) for s in remaining]
+        pick = min(trials, key=lambda t: t[0])
+        held = held_to_leakage(pick)
+        if held is not pick:  # the sidelobes compete refitted, in the step's trials and its reported candidates
+            trials = [held if t is pick else t for t in trials]
+            candidates = [(name, *((held[0], held[4]) if name == pick[3].ranked.name else (gap_value, stats)))
+                          for name, gap_value, _, stats in candidates]
+            frequency = _frequencies([stats for *_, stats in candidates], problem, c, seed=c.seed + 650 + len(chosen))
+            candidates = [(name, gap_value, float(f), stats)
+                          for (name, gap_value, stats), f in zip(candidates, frequency, strict=True)]
         best_gap, best_base, best_effect, best_solo, best_stats = min(trials, key=lambda t: t[0])
         best_name = best_solo.ranked.name
         if current - best_gap < least_gain:

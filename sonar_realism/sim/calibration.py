@@ -20,7 +20,8 @@ from sonar_realism.sim.texture import LearnedSensorTexture, SensorTexture
 
 # Targets a calibrated frame may show at most (a Poisson draw is capped here).
 MAX_TARGETS = 12
-CALIBRATION_VERSION = 3  # 2: the texture's grain kernel per level group; 3: the patches' width across the fan
+# 2: the grain kernel per level group; 3: the patches' width across the fan; 4: crosstalk_db re each return
+CALIBRATION_VERSION = 4
 
 
 @dataclass(frozen=True)

@@ -274,14 +274,16 @@ class BeamSidelobes(Effect, order=50):
     A line array's power pattern is sinc^2 in sin(bearing); Oculus beams are equally spaced in sin(bearing),
     so the pattern is one shift-invariant kernel across beams. `mainlobe_deg` is the -3 dB width at boresight
     (0.6 deg at 1.2 MHz), `sidelobe_db` the first sidelobe level (-13.3 dB unshaded; shading lowers it; the
-    whole sidelobe region is scaled by the same factor) and `crosstalk_db` a flat floor, relative to the row's
-    mean power, that element errors and cross-talk add to every beam of a row. Only constant-range rows mix.
+    whole sidelobe region is scaled by the same factor) and `crosstalk_db` the flat pedestal that element errors
+    and cross-talk put under each return, across every beam of its row, relative to that return (a point echo of
+    power P lifts every beam of its row by P * 10^(crosstalk_db/10); so the level does not depend on the number of
+    beams, and an equal-ripple pattern's far sidelobes are a pedestal). Only constant-range rows mix.
     """
 
     name: ClassVar[str] = "beam_sidelobes"
     mainlobe_deg: float = 0.6
     sidelobe_db: float = -38.7  # calibrated
-    crosstalk_db: float = -35.0
+    crosstalk_db: float = -60.0
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
         "mainlobe_deg": (0.2, 3.0), "sidelobe_db": (-45.0, -10.0), "crosstalk_db": (-60.0, -15.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
@@ -306,8 +308,8 @@ class BeamSidelobes(Effect, order=50):
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
         power = np.square(intensity, dtype=np.float32)
         smeared = _filter_beams(power, self.kernel(frame))
-        floor = np.float32(10 ** (self.crosstalk_db / 10))
-        smeared += floor * power.mean(axis=-1, keepdims=True)
+        pedestal = np.float32(10 ** (self.crosstalk_db / 10))
+        smeared += pedestal * power.sum(axis=-1, keepdims=True)
         # a wide kernel's rounding leaves tiny negative powers beside dark cells: clip them, or sqrt makes NaN
         return np.sqrt(np.maximum(smeared, 0.0, out=smeared))
 
