@@ -3,8 +3,8 @@
 Sidelobes and cross-talk move power along a constant-range row: a row that holds a bright return lifts its dark
 beams with it, and the rows around it (without that return) stay as they were. A noise floor lifts dark cells
 whatever the row holds, and a yaw smear spreads a return over a few beams only, not to the row's dark beams;
-fitted at their strongest (a -10 dB skirt, a -15 dB cross-talk) the catalogue's sidelobes can still stand in for
-either in the statistics. So the check compares the real frames' row-coupled lift (`row_coupled_lift`) with the
+fitted at their strongest (a -10 dB skirt, a -39 dB cross-talk pedestal) the catalogue's sidelobes can still stand
+in for either in the statistics. So the check compares the real frames' row-coupled lift (`row_coupled_lift`) with the
 lift the fitted effect itself puts on the sim's frames: a fitted form that predicts a clear lift the real frames do
 not show is not what is in them, and the sidelobes give way to their step's runner-up (diagnose/which.py).
 """

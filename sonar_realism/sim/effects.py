@@ -283,9 +283,11 @@ class BeamSidelobes(Effect, order=50):
     name: ClassVar[str] = "beam_sidelobes"
     mainlobe_deg: float = 0.6
     sidelobe_db: float = -38.7  # calibrated
+    # The pedestal's search range is the one it had relative to the row mean at 256 beams: reaching up to -15 dB
+    # re each return moved no validation outcome the right way on balance (docs/RESULTS.md, 2026-11-25).
     crosstalk_db: float = -60.0
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
-        "mainlobe_deg": (0.2, 3.0), "sidelobe_db": (-45.0, -10.0), "crosstalk_db": (-60.0, -15.0)}
+        "mainlobe_deg": (0.2, 3.0), "sidelobe_db": (-45.0, -10.0), "crosstalk_db": (-84.0, -39.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
         "mainlobe_deg": (0.01, 30.0), "sidelobe_db": (-120.0, 0.0), "crosstalk_db": (-200.0, 0.0)}
     CALIBRATED: ClassVar[tuple[str, ...]] = ("sidelobe_db",)
