@@ -284,7 +284,8 @@ class BeamSidelobes(Effect, order=50):
     mainlobe_deg: float = 0.6
     sidelobe_db: float = -38.7  # calibrated
     # The pedestal's search range is the one it had relative to the row mean at 256 beams: reaching up to -15 dB
-    # re each return moved no validation outcome the right way on balance (docs/RESULTS.md, 2026-11-25).
+    # re each return moved no validation outcome the right way on balance (the commit 900036c says so; that session
+    # left no figures, and this reach's are in docs/RESULTS.md, 2026-11-27).
     crosstalk_db: float = -60.0
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
         "mainlobe_deg": (0.2, 3.0), "sidelobe_db": (-45.0, -10.0), "crosstalk_db": (-84.0, -39.0)}
