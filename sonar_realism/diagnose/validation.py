@@ -173,7 +173,7 @@ def alt_beam_sidelobes(x: np.ndarray, frame: SonarImage, p: dict[str, Any], rng:
     offsets = np.arange(-(frame.n_beams - 1), frame.n_beams) * step
     ideal = _sampled_pattern(weights, math.sin(math.radians(p["mainlobe_deg"])), offsets)
     # leakage into each beam relative to the return (the pattern's total), as the catalogue's crosstalk_db since
-    # calibration version 4; the range is the former -35..-22 dB re the row mean on the bench's 128 beams
+    # calibration version 4; the range is the former -35..-22 dB re the row mean at 128 beams (3 dB up at 256)
     floor_target = 10 ** (p["crosstalk_db"] / 10) * ideal.sum()
     noisy = _sampled_pattern(weights + 0.05 * errors, math.sin(math.radians(p["mainlobe_deg"])), offsets)
     far = np.abs(offsets) > 8 * math.sin(math.radians(p["mainlobe_deg"]))
