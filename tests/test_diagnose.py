@@ -24,6 +24,7 @@ from sonar_realism.diagnose.gap import (
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.leakage import check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
+from sonar_realism.diagnose.peaks import check_peaks, peak_sharpness, spread_against
 from sonar_realism.diagnose.report import sections, write_figures
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, Unconfirmed, write_diagnosis
 from sonar_realism.diagnose.smear import check_smear
@@ -294,11 +295,12 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
 
 
 def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_effect: Effect,
-                            without_pedestal_gap: float = 0.6) -> Selection:
-    """One selection step on 8 sim frames whose held-out objective is a table: `pick` closes 70 % of the gap,
-    `rival` leaves `rival_gap`, sidelobes with their cross-talk pedestal off leave `without_pedestal_gap`; the
-    real frames are the sim's with `real_effect`, for the signature checks."""
-    frames = sim_frames(8, seed=3)
+                            without_pedestal_gap: float = 0.6, others: tuple[tuple[Effect, float], ...] = (),
+                            frames: list[SonarImage] | None = None) -> Selection:
+    """One selection step on 8 sim frames (or `frames`) whose held-out objective is a table: `pick` closes 70 % of
+    the gap, `rival` leaves `rival_gap` (and each of `others` its gap), sidelobes with their cross-talk pedestal off
+    leave `without_pedestal_gap`; the real frames are the sim's with `real_effect`, for the signature checks."""
+    frames = frames or sim_frames(8, seed=3)
     stats = frame_statistics(np.stack([f.normalized() for f in frames]))
     scale = FeatureScale.pooled(stats, stats)
 
@@ -306,7 +308,7 @@ def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_
         return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
                          for i, f in enumerate(frames)])
 
-    table = {(): 1.0, (pick.name,): 0.3, (rival.name,): rival_gap}
+    table = {(): 1.0, (pick.name,): 0.3, (rival.name,): rival_gap, **{(e.name,): g for e, g in others}}
 
     def holdout(effects, gain=None):
         if any(isinstance(e, BeamSidelobes) and e.crosstalk_db <= PEDESTAL_OFF for e in effects):
@@ -314,9 +316,10 @@ def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_
         return table.get(tuple(sorted(e.name for e in effects)), 0.29), None
 
     ranked = [Solo(RankedEffect(pick.name, pick.params(), 0.3, 0.0, 0.7, 1.0), pick, None),
-              Solo(RankedEffect(rival.name, rival.params(), rival_gap, 0.0, 1 - rival_gap, 0.0), rival, None)]
-    problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
-                               frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
+              *(Solo(RankedEffect(e.name, e.params(), g, 0.0, 1 - g, 0.0), e, None)
+                for e, g in [(rival, rival_gap), *others])]
+    problem = SelectionProblem(frames[:2], stats, (np.zeros(frames[0].intensity.shape),) * 2, scale, holdout, None,
+                               None, 1.0, frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
                                real_images=images([real_effect]), sim_images=images)
     config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
                             max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False)
@@ -358,6 +361,63 @@ def test_sidelobes_whose_pedestal_the_real_frames_lack_are_refitted_without_it_a
     # real frames that show the pedestal keep it
     kept = first_step_with_a_rival(fitted, floor, 0.5, fitted, without_pedestal_gap=0.35)
     assert kept.effects[0].crosstalk_db == -20.0 and not kept.unconfirmed
+
+
+def point_echoes(n: int, seed: int) -> list[SonarImage]:
+    """Frames of 100 single-cell echoes (amplitude 0.3-0.9) each on a faint Rayleigh floor, a beam a degree."""
+    rng = np.random.default_rng(seed)
+    template = sim_frames(1, 0)[0]
+    frames = []
+    for _ in range(n):
+        image = rng.rayleigh(0.005, (128, 128))
+        image[rng.integers(8, 120, 100), rng.integers(4, 124, 100)] = rng.uniform(0.3, 0.9, 100)
+        frames.append(template.replace(intensity=image.astype(np.float32), ranges_m=uniform_ranges(128, 10.0, 0.5),
+                                       azimuths_rad=uniform_azimuths(128, math.radians(128.0)), intensity_scale=1.0))
+    return frames
+
+
+def test_peak_sharpness_falls_under_a_yaw_smear_and_stays_under_a_narrow_skirt():
+    frames = point_echoes(8, seed=1)
+
+    def images(*effects: Effect) -> np.ndarray:
+        return np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
+                         for i, f in enumerate(frames)])
+
+    clean = images()
+    skirt = images(make_effect("beam_sidelobes", mainlobe_deg=0.6, sidelobe_db=-10.0, crosstalk_db=PEDESTAL_OFF))
+    smeared = images(make_effect("motion_blur", yaw_rate_deg_s=60.0, integration_s=0.3))  # an 18-beam box
+    assert peak_sharpness(clean) > 25.0
+    assert peak_sharpness(skirt) > 15.0 > 6.0 > peak_sharpness(smeared)
+    assert math.isnan(peak_sharpness(np.zeros((2, 8, 6))))  # too narrow to have beams 3 away on both sides
+    check = check_peaks(smeared, skirt)
+    assert not check.confirmed and check.spread.excess > 10.0
+    assert "peaks across the beams" in check.describe()
+    assert check_peaks(skirt, skirt).confirmed and check_peaks(smeared, smeared).confirmed
+    # the smear itself fits the smeared frames better than the skirt does; a range blur does not
+    assert spread_against(smeared, smeared)[2].fits_better_than(check.spread)
+    pulse = images(make_effect("range_blur", resolution_m=0.3, sidelobe_db=-20.0))
+    assert not spread_against(smeared, pulse)[2].fits_better_than(check.spread)
+
+
+def test_sidelobes_that_leave_the_peaks_a_yaw_smear_flattens_give_way_to_the_rival_that_flattens_them():
+    # The tuning pair motion_blur + tvg_noise: sidelobes fitted at a -10 dB skirt closed a yaw smear's gap best, its
+    # leakage check passed (no pedestal), and a range blur was the runner-up. The real frames' peaks stand barely
+    # above the beams 3 away; the skirt leaves them sharp, so do the range blur's; the motion blur, third, flattens
+    # them as the real frames show and is named. Real frames with those sidelobes keep them.
+    frames = point_echoes(8, seed=1)
+    skirt = make_effect("beam_sidelobes", mainlobe_deg=0.6, sidelobe_db=-10.0, crosstalk_db=PEDESTAL_OFF)
+    pulse = make_effect("range_blur", resolution_m=0.3, sidelobe_db=-20.0)
+    turning = make_effect("motion_blur", yaw_rate_deg_s=60.0, integration_s=0.3)
+    yielded = first_step_with_a_rival(skirt, pulse, 0.4, turning, others=((turning, 0.45),), frames=frames)
+    assert [(s.action, s.effect) for s in yielded.path] == [
+        ("start", "none"), ("unconfirmed", "beam_sidelobes"), ("add", "motion_blur")]
+    assert yielded.unconfirmed[0].signature.startswith("peaks across the beams")
+    assert yielded.unconfirmed[0].named_instead == "motion_blur"
+    kept = first_step_with_a_rival(skirt, pulse, 0.4, skirt, others=((turning, 0.45),), frames=frames)
+    assert [e.name for e in kept.effects] == ["beam_sidelobes"] and not kept.unconfirmed
+    # no rival flattens the peaks: the sidelobes are named whatever the check says
+    alone = first_step_with_a_rival(skirt, pulse, 0.4, turning, frames=frames)
+    assert [e.name for e in alone.effects] == ["beam_sidelobes"]
 
 
 def test_a_multipath_whose_ghost_the_real_frames_lack_gives_way_to_a_rival_that_explains_the_gap():

@@ -219,16 +219,17 @@ class Residual:
 
 @dataclass(frozen=True)
 class Unconfirmed:
-    """A selected effect dropped because the real frames lack its signature (`signature`: what was looked for
-    and what was measured): a multipath whose ghost copy of each frame's scene is not there, an interference whose
-    bright rows sit at the same ranges in every frame (a fixed band), sidelobes whose fitted form lifts the dark
-    beams of bright rows where the real frames' are not lifted (a noise floor, a yaw smear). What it closed of the
-    gap is a difference of the world, the set-up or an un-catalogued effect, not this effect. An effect that fails
-    its check when picked gives way to its step's runner-up (`named_instead`; `gap_with_effect`: what it would have
-    left; `gap_without`: what the runner-up leaves); between the two blurs the check is the axis of the real frames'
-    smoothing (a motion blur whose smoothing runs along range alone is a range blur). Sidelobes whose fitted
-    cross-talk pedestal fails the leakage check are refitted without it and compete so (`named_instead` is then
-    the effect itself; `gap_without`: what the refit leaves)."""
+    """A selected effect dropped because the real frames lack its signature (`signature`: what was looked for and what
+    was measured): a multipath whose ghost copy of each frame's scene is not there, an interference whose bright rows
+    sit at the same ranges in every frame (a fixed band), sidelobes whose fitted form lifts the dark beams of bright
+    rows where the real frames' are not lifted (a noise floor, a yaw smear) or leaves the bright echoes standing clear
+    of the beams beside them where the real frames flatten them (a yaw smear). What it closed of the gap is a difference
+    of the world, the set-up or an un-catalogued effect, not this effect. An effect that fails its check when picked
+    gives way to its step's runner-up (`named_instead`; `gap_with_effect`: what it would have left; `gap_without`: what
+    the runner-up leaves); between the two blurs the check is the axis of the real frames' smoothing (a motion blur
+    whose smoothing runs along range alone is a range blur). Sidelobes whose fitted cross-talk pedestal fails the
+    leakage check are refitted without it and compete so (`named_instead` is then the effect itself; `gap_without`: what
+    the refit leaves)."""
 
     effect: str
     params: dict[str, Any]

@@ -13,8 +13,9 @@ selected multipath must then show its ghost in the real frames (diagnose/ghost.p
 arcs that move (diagnose/arcs.py: not a fixed band), or it is dropped as unconfirmed. Effects are also held to
 their signature while they are picked: a pick whose signature the real frames lack gives way to the runner-up of
 its step when that passes the step's tests by itself. Fitted at their strongest, sidelobes stand in for a noise
-floor or a yaw smear (their signature: the dark beams of bright rows lifted, diagnose/leakage.py; sidelobes whose
-cross-talk pedestal the real frames lack are first refitted without it), and a multipath
+floor or a yaw smear (their signatures: the dark beams of bright rows lifted, diagnose/leakage.py, where sidelobes
+whose cross-talk pedestal the real frames lack are first refitted without it; bright echoes that stand clear of the
+beams a few away, diagnose/peaks.py, where a rival that flattens them as the real frames show is named), and a multipath
 whose ghosts interfere with the direct return stands in for speckle (its signature: the ghost). Between a range blur
 and a motion blur, the axis of the real frames' smoothing decides (diagnose/smear.py). Last,
 each selected effect must beat a fixed gain pattern (`GainPattern`: a gain per range and per beam): an effect
@@ -49,6 +50,7 @@ from sonar_realism.diagnose.ghost import (
 from sonar_realism.diagnose.leakage import LeakageCheck, check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
 from sonar_realism.diagnose.parallel import parallel_map
+from sonar_realism.diagnose.peaks import PeakCheck, check_peaks, spread_against
 from sonar_realism.diagnose.result import (
     Alternative,
     Found,
@@ -483,7 +485,7 @@ class Solo:
 # a step's judged candidate: (held-out gap, the chosen effects refitted around it, it as fitted, its solo, stats)
 Trial = tuple[float, list[Effect], Effect, Solo, Stats | None]
 # what an effect leaves in the real frames that nothing else does, as tested (see `signature_yield`)
-SignatureCheck = LeakageCheck | GhostCheck | ArcCheck | SmearCheck
+SignatureCheck = LeakageCheck | PeakCheck | GhostCheck | ArcCheck | SmearCheck
 
 
 def signature_check(effect: Effect, problem: SelectionProblem, sim_images: Callable[[], np.ndarray]
@@ -655,40 +657,55 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         return gap_without, base, refitted, solo, stats
 
     def signature_yield(pick: Effect, pick_stats: Stats | None, pick_test: tuple[float, float], base: list[Effect],
-                        runner_up: list[Trial]) -> tuple[Trial, SignatureCheck, tuple[float, float]] | None:
-        """A pick whose signature the real frames lack gives way to the runner-up of its step if that passes the
-        step's tests by itself, or, between the two blurs, stands within the pick's naming resolution (the pick,
-        which passed them, is not told apart from it: `pick_test` is then the step's test). The checks: sidelobes
+                        rivals: list[Trial]) -> tuple[Trial, SignatureCheck, tuple[float, float]] | None:
+        """A pick whose signature the real frames lack gives way to a rival of its step (`rivals`, best first) if that
+        passes the step's tests by itself, or, between the two blurs, stands within the pick's naming resolution (the
+        pick, which passed them, is not told apart from it: `pick_test` is then the step's test). The checks: sidelobes
         whose fitted form lifts the dark beams of bright rows where the real frames' are not lifted
-        (diagnose/leakage.py), a multipath without its ghost, an interference without arcs that move
-        (`signature_check`), and, between the two blurs only, a motion blur whose real smoothing runs along range
-        alone or a range blur whose real smoothing runs across the beams as much (diagnose/smear.py). Failing the
-        check is evidence only against a rival that explains the gap too: on a scene whose rows are full of seabed
-        a true sidelobe's lift can be too small to show, and with no rival it is still named (a multipath or an
+        (diagnose/leakage.py), or leaves the bright echoes standing clear of the beams beside them where the real
+        frames' are flattened (diagnose/peaks.py: the rival is then the best one whose fitted form flattens them clearly
+        more, smoothing the frames across the beams as they are), a multipath without its ghost, an interference without
+        arcs that move (`signature_check`), and, between the two blurs only, a motion blur whose real smoothing runs
+        along range alone or a range blur whose real smoothing runs across the beams as much (diagnose/smear.py).
+        Failing the check is evidence only against a rival that explains the gap too: on a scene whose rows are full of
+        seabed a true sidelobe's lift can be too small to show, and with no rival it is still named (a multipath or an
         interference is then dropped after pruning)."""
-        if (not runner_up or problem.real_images is None or problem.sim_images is None
-                or current - runner_up[0][0] < least_gain):
+        if not rivals or problem.real_images is None or problem.sim_images is None:
             return None
         check: SignatureCheck | None
-        rival = runner_up[0][3].ranked.name
+        rival = rivals[0]
         if isinstance(pick, BeamSidelobes):
             check = check_leakage(problem.real_images, problem.sim_images(base), problem.sim_images([*base, pick]))
+            if check.confirmed:
+                check = check_peaks(problem.real_images, problem.sim_images([*base, pick]))
+                if not check.confirmed:
+                    spread = check.spread
+                    rival = next((t for t in rivals if spread_against(
+                        problem.real_images, problem.sim_images([*t[1], t[2]]))[2].fits_better_than(spread)), None)
+                    if rival is None:
+                        return None
         elif pick.name in BLURS:
-            check = check_smear(pick.name, problem.real_images, problem.sim_images(base)) if rival in BLURS else None
+            name = rival[3].ranked.name
+            check = check_smear(pick.name, problem.real_images, problem.sim_images(base)) if name in BLURS else None
         else:
             check = signature_check(pick, problem, lambda: problem.sim_images(base))
-        if check is None or check.confirmed:
+        if check is None or check.confirmed or current - rival[0] < least_gain:
             return None
-        rival_stats = runner_up[0][4]
+        rival_stats = rival[4]
         gain, lower = lower_bound(current_stats, rival_stats, 700 + len(chosen))
         if lower > least_gain:
-            return runner_up[0], check, (gain, lower)
+            return rival, check, (gain, lower)
+        # The peak check, like the smear check, has evidence *for* the rival (its fitted form flattens the peaks as
+        # the real frames show): one that closes the gap significantly, not by the least gain worth naming, is named
+        # on the pick's test, and the pick stays in its ambiguity group.
+        if isinstance(check, PeakCheck) and pick_test[1] > least_gain and lower > 0:
+            return rival, check, pick_test
         # Only the smear check tells which of two rivals it is; the others only say what the pick is not (a rival
         # that is not significant by itself took an uncatalogued gap's place on the tuning sets). The seed is the
         # step's ambiguity test's (`alternatives` below), so a rival reported in the pick's group is one here.
         if (isinstance(check, SmearCheck) and pick_test[1] > least_gain
                 and lower_bound(rival_stats, pick_stats, 300 + len(chosen))[1] <= least_gain):
-            return runner_up[0], check, pick_test
+            return rival, check, pick_test
         return None
 
     while remaining and len(chosen) < c.max_effects:
@@ -709,7 +726,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             frequency = _frequencies([t[4] for t in trials], problem, c, seed=c.seed + 600 + len(chosen))
             candidates = [(t[3].ranked.name, t[0], float(f), t[4]) for t, f in zip(trials, frequency, strict=True)]
         else:  # the solo ranking is already judged on held-out frames: its best is the first step's choice
-            trials = [(solo.ranked.gap_after, [], solo.effect, solo, solo.stats) for solo in remaining[:2]]
+            trials = [(solo.ranked.gap_after, [], solo.effect, solo, solo.stats)
+                      for solo in remaining[:max(2, c.candidates_per_step)]]
             candidates = [(s.ranked.name, s.ranked.gap_after, s.ranked.top_frequency, s.stats) for s in remaining]
         pick = min(trials, key=lambda t: t[0])
         held = held_to_leakage(pick)
@@ -727,7 +745,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
             break
         gain, lower = lower_bound(current_stats, best_stats, len(chosen))
         yielded = signature_yield(best_effect, best_stats, (gain, lower), best_base,
-                                  sorted(trials, key=lambda t: t[0])[1:2])
+                                  sorted(trials, key=lambda t: t[0])[1:])
         if yielded is not None:
             rival, signature, (gain, lower) = yielded
             unconfirmed.append(Unconfirmed(best_name, best_effect.params(), signature.describe(), best_gap,
