@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import pytest
@@ -30,6 +31,7 @@ from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, Uncon
 from sonar_realism.diagnose.smear import check_smear
 from sonar_realism.diagnose.where import WhereConfig, gap_maps, hot_bins, hot_cells, where_features
 from sonar_realism.diagnose.which import (
+    CountedFrames,
     Selection,
     SelectionProblem,
     Solo,
@@ -891,6 +893,37 @@ def test_a_ring_down_the_gap_does_not_name_is_found_by_its_footprint():
     assert select([]).path == [Step("start", "none", 1.0)] and select([]).found == []
     # max_effects caps what the gap selects, not what the real frames show
     assert [s.effect for s in select([ring], max_effects=0).found] == ["ring_down"]
+
+
+def test_lines_in_a_few_pings_are_counted_on_both_splits_not_the_held_out_half_alone():
+    # Lines in 7 of 32 real pings (and the world's own in one more): the few of the 16 held out are not significantly
+    # more than none of 16 sim frames, all of them in 32 are (Fisher's exact test). Nothing is fitted to a count,
+    # so the fit split counts too.
+    sim, world = sim_frames(32, seed=4), sim_frames(32, seed=5)
+    lines = make_effect("interference", rate_per_ping=3.0, amplitude=0.5, floor_db=-10.0, thickness_m=0.1)
+    rng = np.random.default_rng(0)
+    real = np.stack([(apply_effects(f, [lines], rng) if i % 5 == 0 else f).normalized() for i, f in enumerate(world)])
+    stats = frame_statistics(np.stack([f.normalized() for f in sim[:4]]))
+    interference = make_effect("interference")
+
+    def images(frames: list[SonarImage]) -> Callable[[Sequence[Effect]], np.ndarray]:
+        return lambda effects: np.stack([apply_effects(f, list(effects), np.random.default_rng(i)).normalized()
+                                         for i, f in enumerate(frames)])
+
+    def select(counted: CountedFrames | None) -> Selection:
+        ranked = [Solo(RankedEffect("interference", interference.params(), 1.0, 0.0, 0.0, 1.0), interference, None)]
+        problem = SelectionProblem(sim[:2], stats, (np.zeros((128, 128)),) * 2, FeatureScale.pooled(stats, stats),
+                                   lambda effects, gain=None: (1.0, None), None, None, 1.0, sim[0].ranges_m,
+                                   np.degrees(sim[0].azimuths_rad), real_images=real[1::2],
+                                   sim_images=images(sim[1::2]), counted=counted)
+        config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
+                                max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False)
+        return greedy_select(ranked, problem, config)
+
+    assert select(None).found == []
+    found = select(CountedFrames(real, images(sim))).found
+    assert [f.effect for f in found] == ["interference"]
+    assert "of 32 real frames" in found[0].signature and "against 0 of 32 corrected sim frames" in found[0].signature
 
 
 def test_interference_the_gap_does_not_see_is_found_by_its_lines(tmp_path):

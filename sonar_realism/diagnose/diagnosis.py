@@ -51,6 +51,7 @@ from sonar_realism.diagnose.where import (
     where_features,
 )
 from sonar_realism.diagnose.which import (
+    CountedFrames,
     GainPattern,
     Selection,
     SelectionProblem,
@@ -174,10 +175,17 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
     starts = signature_starts(real_fit, candidate_images[chosen], reference.ranges_m)
+    # the signature finds count on both splits: as many sim frames of the fit split as are held out
+    counted_sim = [sim[i] for i in sim_fit_idx[:len(eval_frames)]] + eval_frames
+    real_fit_ranges = np.stack([real[i].ranges_m for i in real_fit_idx[:config.real_frames]])
+    counted = CountedFrames(
+        np.concatenate([real_fit, real_hold]),
+        lambda effects: corrected_images(counted_sim, effects, config.search.seed + 2, config.normalize),
+        np.concatenate([real_fit_ranges, real_hold_ranges]), np.stack([f.ranges_m for f in counted_sim]))
     problem = SelectionProblem(fit_frames, real_fit_stats, real_halves, scale, holdout, real_hold_stats, raw_stats,
                                gap_before, reference.ranges_m, bearings_deg, terms,
                                real_images=real_hold, sim_images=holdout_images, real_ranges_m=real_hold_ranges,
-                               sim_ranges_m=eval_ranges, signature_starts=starts)
+                               sim_ranges_m=eval_ranges, signature_starts=starts, counted=counted)
     enough = min(len(eval_frames), len(real_hold)) >= MIN_FRAMES_TO_TELL
     if enough:
         ranked = rank_effects(names, problem, config, say)
