@@ -25,7 +25,7 @@ from sonar_realism.diagnose.gap import (
 from sonar_realism.diagnose.ghost import check_ghost, range_lag_correlation
 from sonar_realism.diagnose.leakage import check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
-from sonar_realism.diagnose.peaks import check_peaks, peak_sharpness, spread_against
+from sonar_realism.diagnose.peaks import check_peaks, peak_sharpness
 from sonar_realism.diagnose.report import sections, write_figures
 from sonar_realism.diagnose.result import Alternative, RankedEffect, Step, Unconfirmed, write_diagnosis
 from sonar_realism.diagnose.smear import check_smear
@@ -396,9 +396,9 @@ def test_peak_sharpness_falls_under_a_yaw_smear_and_stays_under_a_narrow_skirt()
     assert "peaks across the beams" in check.describe()
     assert check_peaks(skirt, skirt).confirmed and check_peaks(smeared, smeared).confirmed
     # the smear itself fits the smeared frames better than the skirt does; a range blur does not
-    assert spread_against(smeared, smeared)[2].fits_better_than(check.spread)
+    assert check.rival_fits_better(smeared)
     pulse = images(make_effect("range_blur", resolution_m=0.3, sidelobe_db=-20.0))
-    assert not spread_against(smeared, pulse)[2].fits_better_than(check.spread)
+    assert not check.rival_fits_better(pulse)
 
 
 def test_sidelobes_that_leave_the_peaks_a_yaw_smear_flattens_give_way_to_the_rival_that_flattens_them():

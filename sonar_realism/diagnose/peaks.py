@@ -68,30 +68,47 @@ class Spread:
 
 
 @dataclass(frozen=True)
-class PeakCheck:
-    """The fitted sidelobes' `Spread` against the real frames (peak sharpness `real` and `with_effect`, dB).
-    Unconfirmed when the fitted form leaves the peaks more than MAX_EXCESS_DB sharper than the real frames'."""
+class BeamProfile:
+    """What a set of frames shows across the beams: its `peak_sharpness` (dB) and its across-beam log-gradient
+    energy (diagnose/smear.py)."""
 
-    real: float
-    with_effect: float
-    spread: Spread
+    peaks_db: float
+    across_energy: float
+
+    @classmethod
+    def of(cls, images: np.ndarray) -> BeamProfile:
+        return cls(peak_sharpness(images), log_gradient_energy(images)[1])
+
+    def against(self, real: BeamProfile) -> Spread:
+        return Spread(self.peaks_db - real.peaks_db,
+                      math.log(max(real.across_energy, 1e-12) / max(self.across_energy, 1e-12)))
+
+
+@dataclass(frozen=True)
+class PeakCheck:
+    """The real frames' `BeamProfile` and the sim's with the fitted sidelobes. Unconfirmed when the fitted form
+    leaves the peaks more than MAX_EXCESS_DB sharper than the real frames'."""
+
+    real: BeamProfile
+    with_effect: BeamProfile
+
+    @property
+    def spread(self) -> Spread:
+        return self.with_effect.against(self.real)
 
     @property
     def confirmed(self) -> bool:
         return not self.spread.excess > MAX_EXCESS_DB  # NaN (no peaks to measure): no evidence
 
+    def rival_fits_better(self, with_rival_images: np.ndarray) -> bool:
+        """Does a rival's fitted form (the sim's corrected by it) spread the echoes more as the real frames do?"""
+        return BeamProfile.of(with_rival_images).against(self.real).fits_better_than(self.spread)
+
     def describe(self) -> str:
-        return (f"peaks across the beams: the fitted sidelobes leave the bright echoes {self.with_effect:.1f} dB above "
-                f"the beams {PEAK_OFFSET} away, the real frames {self.real:.1f} dB")
-
-
-def spread_against(real_images: np.ndarray, with_effect_images: np.ndarray) -> tuple[float, float, Spread]:
-    """(the real frames' peak sharpness, the corrected sim's, its Spread)."""
-    real, with_effect = peak_sharpness(real_images), peak_sharpness(with_effect_images)
-    over_smoothing = math.log(max(log_gradient_energy(real_images)[1], 1e-12)
-                              / max(log_gradient_energy(with_effect_images)[1], 1e-12))
-    return real, with_effect, Spread(with_effect - real, over_smoothing)
+        return (f"peaks across the beams: the fitted sidelobes leave the bright echoes "
+                f"{self.with_effect.peaks_db:.1f} dB above the beams {PEAK_OFFSET} away, the real frames "
+                f"{self.real.peaks_db:.1f} dB")
 
 
 def check_peaks(real_images: np.ndarray, with_effect_images: np.ndarray) -> PeakCheck:
-    return PeakCheck(*spread_against(real_images, with_effect_images))
+    return PeakCheck(BeamProfile.of(real_images), BeamProfile.of(with_effect_images))

@@ -50,7 +50,7 @@ from sonar_realism.diagnose.ghost import (
 from sonar_realism.diagnose.leakage import LeakageCheck, check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
 from sonar_realism.diagnose.parallel import parallel_map
-from sonar_realism.diagnose.peaks import PeakCheck, check_peaks, spread_against
+from sonar_realism.diagnose.peaks import PeakCheck, check_peaks
 from sonar_realism.diagnose.result import (
     Alternative,
     Found,
@@ -679,6 +679,11 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
                      f"({check.describe()}): refitted without it, held-out gap {gap_with:.4g} -> {gap_without:.4g}")
         return gap_without, base, refitted, solo, stats
 
+    def flattening_rival(check: PeakCheck, rivals: list[Trial]) -> Trial | None:
+        """The best of `rivals` whose fitted form spreads the echoes across the beams more as the real frames do."""
+        assert problem.sim_images is not None
+        return next((t for t in rivals if check.rival_fits_better(problem.sim_images([*t[1], t[2]]))), None)
+
     def signature_yield(pick: Effect, pick_stats: Stats | None, pick_test: tuple[float, float], base: list[Effect],
                         rivals: list[Trial]) -> tuple[Trial, SignatureCheck, tuple[float, float]] | None:
         """A pick whose signature the real frames lack gives way to a rival of its step (`rivals`, best first) if that
@@ -698,15 +703,13 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         check: SignatureCheck | None
         rival = rivals[0]
         if isinstance(pick, BeamSidelobes):
-            check = check_leakage(problem.real_images, problem.sim_images(base), problem.sim_images([*base, pick]))
+            with_pick = problem.sim_images([*base, pick])
+            check = check_leakage(problem.real_images, problem.sim_images(base), with_pick)
             if check.confirmed:
-                check = check_peaks(problem.real_images, problem.sim_images([*base, pick]))
-                if not check.confirmed:
-                    spread = check.spread
-                    rival = next((t for t in rivals if spread_against(
-                        problem.real_images, problem.sim_images([*t[1], t[2]]))[2].fits_better_than(spread)), None)
-                    if rival is None:
-                        return None
+                check = check_peaks(problem.real_images, with_pick)
+                rival = rival if check.confirmed else flattening_rival(check, rivals)
+                if rival is None:
+                    return None
         elif pick.name in BLURS:
             name = rival[3].ranked.name
             check = check_smear(pick.name, problem.real_images, problem.sim_images(base)) if name in BLURS else None
