@@ -112,3 +112,18 @@ def test_loader_rejects_a_checkpoint_of_another_model(tmp_path):
     assert not is_cyclegan_checkpoint(tmp_path / "other.safetensors")
     with pytest.raises(FormatError, match="model"):
         CycleGANTranslator.from_checkpoint(tmp_path / "other.safetensors")
+
+
+def test_train_cli_saves_every_nth_epoch_and_always_the_last(tmp_path):
+    write_frames(frames(4, 0, speckle=False), tmp_path / "sim")
+    write_frames(frames(4, 1, speckle=True), tmp_path / "real")
+    (tmp_path / "tiny.json").write_text(json.dumps({"ngf": 4, "ndf": 4, "n_blocks": 1, "pool_size": 4}))
+    common = ["train", "--model", "cyclegan", "--real", str(tmp_path / "real"), "--sim", str(tmp_path / "sim"),
+              "--grid", "32x32", "--batch-size", "2", "--config", str(tmp_path / "tiny.json"), "--epochs", "3"]
+    assert main([*common, "--out", str(tmp_path / "run"), "--save-every", "2"]) == 0
+    meta = json.loads((tmp_path / "run" / "cyclegan.json").read_text())
+    assert meta["epoch"] == 3 and [h["epoch"] for h in meta["history"]] == [1, 2, 3]
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [
+        "cyclegan.json", "cyclegan.optim.safetensors", "cyclegan.safetensors"]  # nothing half-written left
+    assert main([*common, "--out", str(tmp_path / "never"), "--save-every", "0"]) == 2
+    assert not (tmp_path / "never").exists()

@@ -527,6 +527,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs1", type=int, help="cdfcvae: cycle-1 epoch limit (default 80)")
     parser.add_argument("--epochs2", type=int, help="cdfcvae: cycle-2 epoch limit (default 60)")
     parser.add_argument("--epochs", type=int, default=200, help="cyclegan: epochs (default 200)")
+    parser.add_argument("--save-every", type=int, default=1, help="cyclegan: write the checkpoint every N epochs "
+                                                                   "and after the last (default 1)")
     parser.add_argument("--batch-size", type=int, help="default: 16 (cdfcvae), 1 (cyclegan)")
     parser.add_argument("--grid", help="model grid RANGESxBEAMS (default 128x128)")
     parser.add_argument("--max-frames", type=int, help="use at most this many frames of each set")

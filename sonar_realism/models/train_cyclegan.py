@@ -2,8 +2,9 @@
 
 Unpaired: each step draws one batch of simulated and one batch of real grids. Adam (lr 2e-4, beta1 0.5),
 constant lr then linear decay to 0 over the last `decay_fraction` of the epochs. The checkpoint is written
-after every epoch (weights of the four networks, optimiser state, JSON with config, grid, epoch and loss
-history), so `--resume` continues where a run stopped. The image pools and random streams are not saved:
+after every `--save-every`-th epoch and after the last (weights of the four networks, optimiser state, JSON with
+config, grid, epoch and loss history; each file replaced whole, so a run killed while writing leaves the previous
+one), and `--resume` continues where a run stopped. The image pools and random streams are not saved:
 a resumed run refills its pools, which changes nothing that matters after a few dozen steps.
 """
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -64,11 +66,19 @@ def save_checkpoint(out: Path, model: CycleGAN, opt_g: torch.optim.Optimizer, op
                     meta: dict[str, Any]) -> Path:
     weights_path, meta_path = resolve_checkpoint(out)
     weights_path.parent.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}, str(weights_path))
     state = {**_optimizer_state(opt_g, "opt_g"), **_optimizer_state(opt_d, "opt_d")}
-    save_file({k: v.cpu().contiguous() for k, v in state.items()}, str(weights_path.with_suffix(".optim.safetensors")))
-    meta_path.write_text(json.dumps(meta, indent=2))
+    _replace_whole(weights_path, lambda p: save_file(
+        {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}, str(p)))
+    _replace_whole(weights_path.with_suffix(".optim.safetensors"), lambda p: save_file(
+        {k: v.cpu().contiguous() for k, v in state.items()}, str(p)))
+    _replace_whole(meta_path, lambda p: p.write_text(json.dumps(meta, indent=2)))
     return weights_path
+
+
+def _replace_whole(path: Path, write: Any) -> None:
+    partial = path.with_name(path.name + ".partial")
+    write(partial)
+    os.replace(partial, path)
 
 
 def lr_factor(epoch: int, epochs: int, decay_fraction: float) -> float:
@@ -82,6 +92,8 @@ def train(args: argparse.Namespace) -> int:
     """Train (or resume) a CycleGAN sim -> real. See the `train` subcommand for the arguments."""
     if not args.sim:
         raise ConfigError("--sim: the CycleGAN needs simulated frames (it learns sim -> real)")
+    if args.save_every < 1:
+        raise ConfigError(f"--save-every: need at least 1 epoch, got {args.save_every}")
     grid = cyclegan_grid(args.grid)
     overrides = json.loads(Path(args.config).read_text()) if args.config else {}
     config = from_dict(CycleGANConfig, overrides, where=str(args.config or "config"))
@@ -143,6 +155,8 @@ def train(args: argparse.Namespace) -> int:
         history.append({"epoch": epoch + 1, "lr": config.lr * factor, "seconds": time.monotonic() - began,
                         **{k: v / steps for k, v in sums.items()}})
         print(file=sys.stderr)
+        if (epoch + 1) % args.save_every and epoch + 1 < args.epochs:
+            continue
         save_checkpoint(args.out, model, opt_g, opt_d, {
             "model": CHECKPOINT_KIND, "config": to_dict(config), "grid": list(grid), "epoch": epoch + 1,
             "epochs": args.epochs, "batch_size": args.batch_size, "seed": args.seed, "history": history,
