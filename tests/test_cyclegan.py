@@ -127,3 +127,40 @@ def test_train_cli_saves_every_nth_epoch_and_always_the_last(tmp_path):
         "cyclegan.json", "cyclegan.optim.safetensors", "cyclegan.safetensors"]  # nothing half-written left
     assert main([*common, "--out", str(tmp_path / "never"), "--save-every", "0"]) == 2
     assert not (tmp_path / "never").exists()
+
+
+def test_crop_training_translates_whole_frames_at_their_own_resolution(tmp_path):
+    write_frames(frames(4, 0, speckle=False, shape=(44, 36)), tmp_path / "sim")
+    write_frames(frames(4, 1, speckle=True, shape=(52, 28)), tmp_path / "real")
+    (tmp_path / "tiny.json").write_text(json.dumps({"ngf": 4, "ndf": 4, "n_blocks": 1, "pool_size": 4}))
+    run = tmp_path / "run"
+    common = ["train", "--model", "cyclegan", "--real", str(tmp_path / "real"), "--sim", str(tmp_path / "sim"),
+              "--batch-size", "2", "--config", str(tmp_path / "tiny.json")]
+    assert main([*common, "--out", str(run), "--crop", "24", "--epochs", "1"]) == 0
+    meta = json.loads((run / "cyclegan.json").read_text())
+    assert meta["grid"] is None and meta["crop"] == 24
+    assert main([*common, "--out", str(run), "--epochs", "2", "--resume"]) == 0  # the crop comes from the checkpoint
+    assert json.loads((run / "cyclegan.json").read_text())["crop"] == 24
+
+    translator = CycleGANTranslator.from_checkpoint(run, device="cpu")
+    padded = translator.translate(frames(1, 7, speckle=True, shape=(50, 30)), n=2)[0]  # sides padded, cut back
+    assert padded.intensity.shape == (2, 50, 30)
+    source = frames(1, 8, speckle=True, shape=(48, 28))[0]
+    out = translator.translate([source], n=2)[0]
+    assert out.intensity.shape == (2, 48, 28) and out.same_geometry(source)
+    with torch.no_grad():
+        direct = translator.generator(torch.from_numpy(source.intensity / np.float32(source.intensity.max()))
+                                      [None, None] * 2 - 1)[0, 0].numpy()
+    # the generator on the frame's own cells, not on a resampled grid
+    assert np.allclose(out.intensity[1], np.clip((direct + 1) / 2, 0, 1), atol=1e-5)
+
+
+def test_crop_larger_than_a_frame_or_given_with_a_grid_is_refused(tmp_path):
+    write_frames(frames(2, 0, speckle=False, shape=(40, 24)), tmp_path / "sim")
+    write_frames(frames(2, 1, speckle=True, shape=(40, 24)), tmp_path / "real")
+    common = ["train", "--model", "cyclegan", "--real", str(tmp_path / "real"), "--sim", str(tmp_path / "sim"),
+              "--out", str(tmp_path / "run"), "--epochs", "1"]
+    assert main([*common, "--crop", "32"]) == 2  # the frames are 24 beams wide
+    assert main([*common, "--crop", "16", "--grid", "32x32"]) == 2
+    assert main([*common, "--crop", "18"]) == 2
+    assert not (tmp_path / "run").exists()

@@ -4,7 +4,8 @@ ResNet generator (7x7 conv, two stride-2 convs, residual blocks, two transposed 
 70x70 PatchGAN discriminator, least-squares GAN loss, cycle weight 10, identity weight 0.5 (times the
 cycle weight), image pools of 50 fakes. Images are single-channel polar grids in [-1, 1]. Checkpoints
 are a safetensors file with the four networks and a JSON file beside it (`"model": "cyclegan"`, config,
-grid, epoch); `CycleGANTranslator` loads one and translates like the cDFCVAE Translator.
+grid, epoch); `CycleGANTranslator` loads one and translates like the cDFCVAE Translator: on the model grid it was
+trained on, or, for one trained on crops (`"grid": null`), each frame whole at its own resolution.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from sonar_realism.config import from_dict
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_like, resample_to_grid
-from sonar_realism.models.datasets import to_model_grid
+from sonar_realism.models.datasets import normalise, to_model_grid
 from sonar_realism.models.device import pick_device
 
 CHECKPOINT_KIND = "cyclegan"
@@ -205,7 +206,7 @@ class CycleGANTranslator:
     CycleGAN is deterministic, so the n samples of one input are n copies of the same output.
     """
 
-    def __init__(self, generator: ResnetGenerator, grid: tuple[int, int], device: torch.device) -> None:
+    def __init__(self, generator: ResnetGenerator, grid: tuple[int, int] | None, device: torch.device) -> None:
         self.generator = generator.to(device).eval()
         self.grid = grid
         self.device = device
@@ -231,12 +232,13 @@ class CycleGANTranslator:
             generator.load_state_dict(g_state)
         except RuntimeError as exc:
             raise FormatError(str(weights_path), "g_ab", f"weights do not fit the config: {exc}") from exc
-        return cls(generator, tuple(meta["grid"]), pick_device(device))
+        return cls(generator, tuple(meta["grid"]) if meta.get("grid") else None, pick_device(device))
 
     @torch.no_grad()
     def translate(self, frames: Sequence[SonarImage], n: int = 1, temperature: float = 1.0,
                   seed: int | None = None) -> list[SonarImage]:
-        """Each frame translated on the model grid and resampled back onto its own geometry, n copies stacked.
+        """Each frame translated on the model grid and resampled back onto its own geometry (or, with no grid, at
+        its own resolution), n copies stacked.
 
         `temperature` and `seed` are accepted for interface compatibility and have no effect.
         """
@@ -245,12 +247,26 @@ class CycleGANTranslator:
         outputs = []
         for frame in frames:
             base = frame.sample(0) if frame.intensity.ndim == 3 else frame
+            meta = {**base.meta, "translator": CHECKPOINT_KIND}
+            if self.grid is None:
+                fake = self._at_own_resolution(normalise(base, "frame_max"))
+                outputs.append(base.replace(intensity=np.repeat(fake[None], n, axis=0), intensity_scale=1.0,
+                                            meta=meta))
+                continue
             grid = torch.from_numpy(to_model_grid(base, self.grid, "frame_max")[None, None]).to(self.device)
             fake = ((self.generator(grid * 2 - 1) + 1) / 2).clamp(0, 1)[0, 0].cpu().numpy()
             on_grid = resample_to_grid(base, *self.grid) if (base.n_ranges, base.n_beams) != self.grid else base
             result = on_grid.replace(intensity=np.repeat(fake[None], n, axis=0).astype(np.float32),
-                                     intensity_scale=1.0, meta={**base.meta, "translator": CHECKPOINT_KIND})
+                                     intensity_scale=1.0, meta=meta)
             if not result.same_geometry(base):
                 result = resample_like(result, base)
             outputs.append(result.replace(intensity=np.clip(result.intensity, 0.0, 1.0).astype(np.float32)))
         return outputs
+
+    def _at_own_resolution(self, level: np.ndarray) -> np.ndarray:
+        """The generator over a whole frame [R, B] in [0, 1], padded by reflection to its two stride-2 levels."""
+        rows, cols = level.shape
+        x = torch.from_numpy(np.ascontiguousarray(level, np.float32))[None, None].to(self.device) * 2 - 1
+        x = nn.functional.pad(x, (0, -cols % 4, 0, -rows % 4), mode="reflect")
+        fake = ((self.generator(x) + 1) / 2).clamp(0, 1)[0, 0, :rows, :cols]
+        return fake.cpu().numpy().astype(np.float32)

@@ -113,6 +113,34 @@ def load_grid_frames(path: str | Path, grid: tuple[int, int], how: Normalisation
     return GridFrames(np.stack(images).astype(np.float32), tuple(recordings[: len(images)]))
 
 
+def load_native_frames(path: str | Path, how: Normalisation = "frame_max",
+                       max_frames: int | None = None) -> list[np.ndarray]:
+    """Every frame of the recording(s) at `path` at its own resolution, normalised (multi-sample frames give one
+    image each): what a fully convolutional model trains on in crops."""
+    images: list[np.ndarray] = []
+    for source in recording_sources(Path(path)):
+        for frame in read_frames(source):
+            level = normalise(frame, how)
+            images.extend(level.reshape(-1, *level.shape[-2:]))
+            if max_frames is not None and len(images) >= max_frames:
+                return images[:max_frames]
+    if not images:
+        raise ConfigError(f"{path}: no frames found")
+    return images
+
+
+def random_crops(images: Sequence[np.ndarray], count: int, crop: int, rng: np.random.Generator) -> np.ndarray:
+    """`count` crops of crop × crop cells, each from a frame and a place drawn uniformly, [count, crop, crop]."""
+    picks = rng.integers(0, len(images), count)
+    out = np.empty((count, crop, crop), np.float32)
+    for i, pick in enumerate(picks):
+        image = images[pick]
+        row = rng.integers(0, image.shape[0] - crop + 1)
+        col = rng.integers(0, image.shape[1] - crop + 1)
+        out[i] = image[row:row + crop, col:col + crop]
+    return out
+
+
 def split_by_recording(frames: GridFrames, val_recordings: Sequence[str] = (), val_fraction: float = 0.2,
                        ) -> tuple[np.ndarray, np.ndarray, str]:
     """(train indices, validation indices, how it was split).

@@ -527,6 +527,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs1", type=int, help="cdfcvae: cycle-1 epoch limit (default 80)")
     parser.add_argument("--epochs2", type=int, help="cdfcvae: cycle-2 epoch limit (default 60)")
     parser.add_argument("--epochs", type=int, default=200, help="cyclegan: epochs (default 200)")
+    parser.add_argument("--crop", type=int, help="cyclegan: train on CROP x CROP crops of the frames at their own "
+                                                 "resolution (its authors' recipe) instead of on --grid")
     parser.add_argument("--save-every", type=int, default=1, help="cyclegan: write the checkpoint every N epochs "
                                                                    "and after the last (default 1)")
     parser.add_argument("--batch-size", type=int, help="default: 16 (cdfcvae), 1 (cyclegan)")
@@ -566,7 +568,6 @@ def run(args: argparse.Namespace) -> int:
         from sonar_realism.models.train_cyclegan import train
 
         args.batch_size = args.batch_size or 1
-        args.grid = args.grid or "128x128"
         args.seed = args.seed if args.seed is not None else 0
         return train(args)
     cfg = config_from_args(args)

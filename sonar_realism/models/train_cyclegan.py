@@ -1,6 +1,9 @@
 """Training loop of the CycleGAN baseline: `sonar-realism train --model cyclegan` lands here.
 
-Unpaired: each step draws one batch of simulated and one batch of real grids. Adam (lr 2e-4, beta1 0.5),
+Unpaired: each step draws one batch of simulated and one batch of real images: frames on the model grid
+(`--grid`), or, with `--crop N`, N × N crops of the frames at their own resolution, as its authors train it (random
+crops of full-resolution images; the generator is fully convolutional and translates whole frames at their own
+resolution, where the simulator's own speckle is still there to be mapped). Adam (lr 2e-4, beta1 0.5),
 constant lr then linear decay to 0 over the last `decay_fraction` of the epochs. The checkpoint is written
 after every `--save-every`-th epoch and after the last (weights of the four networks, optimiser state, JSON with
 config, grid, epoch and loss history; each file replaced whole, so a run killed while writing leaves the previous
@@ -15,6 +18,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +35,7 @@ from sonar_realism.models.cyclegan import (
     ImagePool,
     resolve_checkpoint,
 )
-from sonar_realism.models.datasets import load_grid_frames
+from sonar_realism.models.datasets import load_grid_frames, load_native_frames, random_crops
 from sonar_realism.models.device import pick_device
 
 
@@ -41,6 +45,22 @@ def cyclegan_grid(text: str) -> tuple[int, int]:
     if rows < 16 or cols < 16 or rows % 4 or cols % 4:
         raise ConfigError(f"--grid: sides must be multiples of 4 and >= 16, got {text!r}")
     return rows, cols
+
+
+def _batches(path: str, flag: str, grid: tuple[int, int] | None, crop: int | None, args: argparse.Namespace
+             ) -> tuple[Callable[[np.random.Generator], torch.Tensor], int]:
+    """(draw one batch [B, 1, H, W] in tanh's [-1, 1], number of frames). Same preprocessing as the cDFCVAE
+    (per-frame max rescale), on the model grid or in crops at the frames' own resolution."""
+    if grid is not None:
+        images = torch.from_numpy(load_grid_frames(path, grid, "frame_max", args.max_frames).images * 2 - 1)
+        return (lambda rng: images[rng.integers(0, len(images), args.batch_size)].unsqueeze(1)), len(images)
+    native = load_native_frames(path, "frame_max", args.max_frames)
+    smallest = min(native, key=lambda image: min(image.shape))
+    if min(smallest.shape) < crop:
+        raise ConfigError(f"{flag} {path}: a frame of {smallest.shape[0]} x {smallest.shape[1]} cells is smaller "
+                          f"than --crop {crop}")
+    return (lambda rng: torch.from_numpy(random_crops(native, args.batch_size, crop, rng) * 2 - 1).unsqueeze(1)), \
+        len(native)
 
 
 def _optimizer_state(optimizer: torch.optim.Optimizer, prefix: str) -> dict[str, torch.Tensor]:
@@ -94,7 +114,12 @@ def train(args: argparse.Namespace) -> int:
         raise ConfigError("--sim: the CycleGAN needs simulated frames (it learns sim -> real)")
     if args.save_every < 1:
         raise ConfigError(f"--save-every: need at least 1 epoch, got {args.save_every}")
-    grid = cyclegan_grid(args.grid)
+    if args.crop is not None and args.grid is not None:
+        raise ConfigError("--crop trains at the frames' own resolution, --grid on a model grid: give one of them")
+    crop = args.crop
+    if crop is not None and (crop < 16 or crop % 4):
+        raise ConfigError(f"--crop: a multiple of 4 and >= 16 (two stride-2 levels), got {crop}")
+    grid = None if crop is not None else cyclegan_grid(args.grid or "128x128")
     overrides = json.loads(Path(args.config).read_text()) if args.config else {}
     config = from_dict(CycleGANConfig, overrides, where=str(args.config or "config"))
     device = pick_device(args.device)
@@ -109,10 +134,10 @@ def train(args: argparse.Namespace) -> int:
         if meta.get("model") != CHECKPOINT_KIND:
             raise FormatError(str(meta_path), "model", f"not a {CHECKPOINT_KIND} checkpoint")
         config = from_dict(CycleGANConfig, meta["config"], where=f"{meta_path}: config")
-        grid = (int(meta["grid"][0]), int(meta["grid"][1]))
-    # Same preprocessing as the cDFCVAE (model grid, per-frame max rescale), mapped to tanh's [-1, 1].
-    sim = torch.from_numpy(load_grid_frames(args.sim, grid, "frame_max", args.max_frames).images * 2 - 1).unsqueeze(1)
-    real = torch.from_numpy(load_grid_frames(args.real, grid, "frame_max", args.max_frames).images * 2 - 1).unsqueeze(1)
+        grid = (int(meta["grid"][0]), int(meta["grid"][1])) if meta.get("grid") else None
+        crop = meta.get("crop")
+    draw_sim, n_sim = _batches(args.sim, "--sim", grid, crop, args)
+    draw_real, n_real = _batches(args.real, "--real", grid, crop, args)
     model = CycleGAN(config).to(device)
     generators = list(model.g_ab.parameters()) + list(model.g_ba.parameters())
     discriminators = list(model.d_a.parameters()) + list(model.d_b.parameters())
@@ -128,7 +153,7 @@ def train(args: argparse.Namespace) -> int:
         print(f"resuming {weights_path} at epoch {start_epoch}", file=sys.stderr)
 
     pool_a, pool_b = ImagePool(config.pool_size, args.seed), ImagePool(config.pool_size, args.seed + 1)
-    steps = max(len(sim), len(real)) // args.batch_size or 1
+    steps = max(n_sim, n_real) // args.batch_size or 1
     for epoch in range(start_epoch, args.epochs):
         factor = lr_factor(epoch, args.epochs, config.decay_fraction)
         for opt in (opt_g, opt_d):
@@ -138,8 +163,8 @@ def train(args: argparse.Namespace) -> int:
         began = time.monotonic()
         model.train()
         for step in range(steps):
-            real_a = sim[rng.integers(0, len(sim), args.batch_size)].to(device)
-            real_b = real[rng.integers(0, len(real), args.batch_size)].to(device)
+            real_a = draw_sim(rng).to(device)
+            real_b = draw_real(rng).to(device)
             loss_g, terms, (fake_a, fake_b) = model.generator_loss(real_a, real_b)
             opt_g.zero_grad()
             loss_g.backward()
@@ -158,8 +183,9 @@ def train(args: argparse.Namespace) -> int:
         if (epoch + 1) % args.save_every and epoch + 1 < args.epochs:
             continue
         save_checkpoint(args.out, model, opt_g, opt_d, {
-            "model": CHECKPOINT_KIND, "config": to_dict(config), "grid": list(grid), "epoch": epoch + 1,
+            "model": CHECKPOINT_KIND, "config": to_dict(config), "grid": list(grid) if grid else None, "crop": crop,
+            "epoch": epoch + 1,
             "epochs": args.epochs, "batch_size": args.batch_size, "seed": args.seed, "history": history,
-            "real": str(args.real), "sim": str(args.sim), "n_real": len(real), "n_sim": len(sim)})
+            "real": str(args.real), "sim": str(args.sim), "n_real": n_real, "n_sim": n_sim})
     print(f"checkpoint: {weights_path}", file=sys.stderr)
     return 0
