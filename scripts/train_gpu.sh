@@ -3,7 +3,9 @@
 #   1. the model benchmark's GPU rows and goals (bench/bench_model.py --device cuda), on an otherwise idle GPU;
 #   2. then side by side: the shipped cDFCVAE configuration with the paper's epoch budget (80 + 60, early stopping
 #      as always) and the stock CycleGAN (ngf 64, 9 residual blocks, 200 epochs, lr falling over the last 100),
-#      each capped at TRAIN_SECONDS, on the packed fit recording and 400 calibrated-sim frames.
+#      each capped at TRAIN_SECONDS, on the packed fit recording and 400 calibrated-sim frames. The CycleGAN trains
+#      on the model grid here: the frames at their own resolution, which its `--crop` recipe (scripts/evaluate.sh)
+#      needs, do not fit in the 64 MiB the machine receives beside the repository.
 # What comes back, under $OUT: logs.tgz (logs, benchmark table, checkpoint JSONs, loss curves), the cDFCVAE
 # checkpoint's weights (its learned texture is left unfitted: fit it where the real frames are, at their own
 # resolution, with scripts/refit_texture.py --texture learned), and the CycleGAN's sim -> real generator in parts
