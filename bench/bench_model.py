@@ -128,7 +128,8 @@ def gpu_goal_rows(generator: torch.nn.Module | None) -> list[dict]:
             seconds = _timed(lambda t=translator, f=frames, n=n: t.translate(f, n, seed=0), 5)
             rate = (n_frames * n if unit == "samples/s" else n_frames) / seconds
             row = {"device": "cuda", "frame (R x B)": f"{grid[0]}x{grid[1]}", "checkpoint": _label(translator, name),
-                   "frames per call": n_frames, "n": n, "ms/call": 1e3 * seconds, unit: rate}
+                   "frames per call": n_frames, "n": n, "ms/call": 1e3 * seconds, "frames/s": n_frames / seconds,
+                   "samples/s": n_frames * n / seconds}
             if generator is not None:
                 g = generator.to("cuda")
                 x = torch.rand(n_frames, 1, *grid, device="cuda") * 2 - 1
