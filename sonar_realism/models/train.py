@@ -353,8 +353,8 @@ class Trainer:
         info = {"format": STATE_FORMAT, "config": to_dict(self.cfg), "cycle": self.cycle, "history": self.history,
                 "early_stopping": {k: vars(v) for k, v in self.stopping.items()},
                 "rng_numpy": self.rng.bit_generator.state}
-        _atomic(self.out / "state.safetensors", lambda p: save_file(tensors, str(p)))
-        _atomic(self.out / "state.json", lambda p: p.write_text(json.dumps(info, indent=1, default=_jsonable)))
+        write_atomically(self.out / "state.safetensors", lambda p: save_file(tensors, str(p)))
+        write_atomically(self.out / "state.json", lambda p: p.write_text(json.dumps(info, indent=1, default=_jsonable)))
 
     def load_state(self) -> None:
         info_path, tensor_path = self.out / "state.json", self.out / "state.safetensors"
@@ -504,7 +504,8 @@ def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out:
 
 # --- helpers -------------------------------------------------------------------------------------------------------
 
-def _atomic(path: Path, write: Any) -> None:
+def write_atomically(path: Path, write: Any) -> None:
+    """`write(partial)` then rename over `path`: a run killed while writing leaves the previous file whole."""
     partial = path.with_name(path.name + ".tmp")
     write(partial)
     os.replace(partial, path)

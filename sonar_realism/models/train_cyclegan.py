@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -37,6 +36,7 @@ from sonar_realism.models.cyclegan import (
 )
 from sonar_realism.models.datasets import load_grid_frames, load_native_frames, random_crops
 from sonar_realism.models.device import pick_device
+from sonar_realism.models.train import write_atomically
 
 
 def cyclegan_grid(text: str) -> tuple[int, int]:
@@ -87,18 +87,13 @@ def save_checkpoint(out: Path, model: CycleGAN, opt_g: torch.optim.Optimizer, op
     weights_path, meta_path = resolve_checkpoint(out)
     weights_path.parent.mkdir(parents=True, exist_ok=True)
     state = {**_optimizer_state(opt_g, "opt_g"), **_optimizer_state(opt_d, "opt_d")}
-    _replace_whole(weights_path, lambda p: save_file(
+    write_atomically(weights_path, lambda p: save_file(
         {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}, str(p)))
-    _replace_whole(weights_path.with_suffix(".optim.safetensors"), lambda p: save_file(
+    write_atomically(weights_path.with_suffix(".optim.safetensors"), lambda p: save_file(
         {k: v.cpu().contiguous() for k, v in state.items()}, str(p)))
-    _replace_whole(meta_path, lambda p: p.write_text(json.dumps(meta, indent=2)))
+    write_atomically(meta_path, lambda p: p.write_text(json.dumps(meta, indent=2)))
     return weights_path
 
-
-def _replace_whole(path: Path, write: Any) -> None:
-    partial = path.with_name(path.name + ".partial")
-    write(partial)
-    os.replace(partial, path)
 
 
 def lr_factor(epoch: int, epochs: int, decay_fraction: float) -> float:
