@@ -62,6 +62,21 @@ def _cyclegan_generator() -> torch.nn.Module | None:
     return ResnetGenerator().eval()
 
 
+def _cyclegan_seconds(generator: torch.nn.Module, n_frames: int, grid: tuple[int, int], device: str,
+                      repeats: int) -> float:
+    """Median seconds of the CycleGAN generator on `n_frames` random frames of `grid`, on `device`."""
+    g = generator.to(device)
+    x = torch.rand(n_frames, 1, *grid, device=device) * 2 - 1
+
+    def step() -> None:
+        with torch.inference_mode():
+            g(x)
+        if device == "cuda":
+            torch.cuda.synchronize()
+
+    return _timed(step, repeats)
+
+
 def _frame(grid: tuple[int, int]) -> SonarImage:
     rng = np.random.default_rng(0)
     return SonarImage(rng.integers(0, 255, grid, dtype=np.uint8), uniform_ranges(grid[0], 30.0),
@@ -85,18 +100,7 @@ def run(devices: tuple[str, ...] | None = None) -> list[dict]:
         for grid in GRIDS:
             frame = _frame(grid)
             repeats = 8 if grid == (128, 128) else 3
-            cyclegan_s = None
-            if generator is not None:
-                g = generator.to(device)
-                x = torch.rand(1, 1, *grid, device=device) * 2 - 1
-
-                def cyclegan_step(g: torch.nn.Module = g, x: torch.Tensor = x, device: str = device) -> None:
-                    with torch.inference_mode():
-                        g(x)
-                    if device == "cuda":
-                        torch.cuda.synchronize()
-
-                cyclegan_s = _timed(cyclegan_step, repeats)
+            cyclegan_s = None if generator is None else _cyclegan_seconds(generator, 1, grid, device, repeats)
             for label, translator in translators:
                 for n in SAMPLES if label.startswith("shipped") else (4,):
                     seconds = _timed(lambda t=translator, n=n, f=frame: t.translate([f], n, seed=0), repeats)
@@ -131,15 +135,7 @@ def gpu_goal_rows(generator: torch.nn.Module | None) -> list[dict]:
                    "frames per call": n_frames, "n": n, "ms/call": 1e3 * seconds, "frames/s": n_frames / seconds,
                    "samples/s": n_frames * n / seconds}
             if generator is not None:
-                g = generator.to("cuda")
-                x = torch.rand(n_frames, 1, *grid, device="cuda") * 2 - 1
-
-                def cyclegan_step(g: torch.nn.Module = g, x: torch.Tensor = x) -> None:
-                    with torch.inference_mode():
-                        g(x)
-                    torch.cuda.synchronize()
-
-                cyclegan_s = _timed(cyclegan_step, 5)
+                cyclegan_s = _cyclegan_seconds(generator, n_frames, grid, "cuda", 5)
                 row["cyclegan ms/call"] = 1e3 * cyclegan_s
                 row["time vs cyclegan"] = seconds / cyclegan_s
             row["goal"] = f"{goal:g} {unit}: {'met' if rate >= goal else 'missed'}"

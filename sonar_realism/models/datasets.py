@@ -13,7 +13,7 @@ are nearly identical, so a random split would leak and early stopping would neve
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -91,42 +91,37 @@ def recording_sources(path: Path) -> list[Path]:
     return ([path] if has_files or not children else []) + [s for c in children for s in recording_sources(c)]
 
 
-def load_grid_frames(path: str | Path, grid: tuple[int, int], how: Normalisation = "frame_max",
-                     max_frames: int | None = None) -> GridFrames:
-    """Every frame of the recording(s) at `path` on the model grid (multi-sample frames give one image each)."""
+def _images_of(path: str | Path, image_of: Callable[[SonarImage], np.ndarray], max_frames: int | None
+               ) -> tuple[list[np.ndarray], list[str]]:
+    """`image_of` of every frame of the recording(s) at `path`, one image per sample, with the recording of each;
+    at most `max_frames` images."""
     images: list[np.ndarray] = []
     recordings: list[str] = []
     for source in recording_sources(Path(path)):
         for frame in read_frames(source):
-            on_grid = to_model_grid(frame, grid, how)
-            recording = recording_of(frame, source.name)
-            for image in on_grid.reshape(-1, *grid):
-                images.append(image)
-                recordings.append(recording)
+            level = image_of(frame)
+            samples = level.reshape(-1, *level.shape[-2:])
+            images.extend(samples)
+            recordings.extend([recording_of(frame, source.name)] * len(samples))
             if max_frames is not None and len(images) >= max_frames:
-                break
-        if max_frames is not None and len(images) >= max_frames:
-            break
+                return images[:max_frames], recordings[:max_frames]
     if not images:
         raise ConfigError(f"{path}: no frames found")
-    images = images[:max_frames] if max_frames is not None else images
-    return GridFrames(np.stack(images).astype(np.float32), tuple(recordings[: len(images)]))
+    return images, recordings
+
+
+def load_grid_frames(path: str | Path, grid: tuple[int, int], how: Normalisation = "frame_max",
+                     max_frames: int | None = None) -> GridFrames:
+    """Every frame of the recording(s) at `path` on the model grid (multi-sample frames give one image each)."""
+    images, recordings = _images_of(path, lambda frame: to_model_grid(frame, grid, how), max_frames)
+    return GridFrames(np.stack(images).astype(np.float32), tuple(recordings))
 
 
 def load_native_frames(path: str | Path, how: Normalisation = "frame_max",
                        max_frames: int | None = None) -> list[np.ndarray]:
     """Every frame of the recording(s) at `path` at its own resolution, normalised (multi-sample frames give one
     image each): what a fully convolutional model trains on in crops."""
-    images: list[np.ndarray] = []
-    for source in recording_sources(Path(path)):
-        for frame in read_frames(source):
-            level = normalise(frame, how)
-            images.extend(level.reshape(-1, *level.shape[-2:]))
-            if max_frames is not None and len(images) >= max_frames:
-                return images[:max_frames]
-    if not images:
-        raise ConfigError(f"{path}: no frames found")
-    return images
+    return _images_of(path, lambda frame: normalise(frame, how), max_frames)[0]
 
 
 def random_crops(images: Sequence[np.ndarray], count: int, crop: int, rng: np.random.Generator) -> np.ndarray:
