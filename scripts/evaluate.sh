@@ -30,5 +30,6 @@ fi
 MODELS=(--model cdfcvae=sonar_realism/assets/cdfcvae_default.safetensors
         --model paper=sonar_realism/assets/cdfcvae_paper.safetensors
         --model cyclegan=runs/cyclegan_crop/cyclegan.safetensors)
-sonar-realism evaluate --real runs/real_171720 --sim runs/sim_calibrated_eval --n 4 --seed "$SEED" "${MODELS[@]}" \
-  --out "runs/eval_oculus_seed$SEED"
+# --yardstick: the training recording, real frames from outside the one the realism CNN learns "real" from
+sonar-realism evaluate --real runs/real_171720 --yardstick runs/real_173650 --sim runs/sim_calibrated_eval --n 4 \
+  --seed "$SEED" "${MODELS[@]}" --out "runs/eval_oculus_seed$SEED"

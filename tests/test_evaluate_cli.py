@@ -34,6 +34,7 @@ def frames(n: int, seed: int, speckle: bool, scene: str | None = None) -> list[S
 
 def test_evaluate_writes_table_metrics_and_figures(tmp_path):
     write_frames(frames(16, 1, speckle=True), tmp_path / "real")
+    write_frames(frames(8, 5, speckle=True), tmp_path / "other_real")  # another "recording" of the sensor
     organic = frames(8, 2, speckle=False)
     write_frames(organic, tmp_path / "organic")  # category from the folder name
     for index, frame in enumerate(organic):  # object masks beside the frames, as `sonar-realism simulate` writes
@@ -48,19 +49,22 @@ def test_evaluate_writes_table_metrics_and_figures(tmp_path):
     out = tmp_path / "eval"
     assert main(["evaluate", "--real", str(tmp_path / "real"), "--sim", str(tmp_path / "organic"),
                  "--sim", str(tmp_path / "sim2"), "--model", f"cyclegan={tmp_path / 'cg'}", "--out", str(out),
-                 "--grid", "32x32", "--n", "2", "--cnn-epochs", "8"]) == 0
+                 "--grid", "32x32", "--n", "2", "--cnn-epochs", "8", "--yardstick", str(tmp_path / "other_real")]) == 0
 
     results = json.loads((out / "results.json").read_text())
     assert results["inputs"]["command"].startswith(f"sonar-realism evaluate --real {tmp_path / 'real'} --sim ")
     assert set(results["table"]) == {"organic", "constructed", "all"}
     assert set(results["table"]["organic"]) == {"raw sim", "cyclegan"}
-    assert results["data"] == {"n_real": 16, "n_real_cnn": 8, "n_real_reference": 8, "n_sim_cnn": 8,
+    assert results["data"] == {"n_real": 16, "n_real_cnn": 8, "n_real_reference": 8, "n_real_other": 8, "n_sim_cnn": 8,
                                "n_sim_scored": 8, "sim_scored_per_category": {"constructed": 4, "organic": 4}}
     table = results["table"]["all"]
     for cell in table.values():
         assert 0.0 <= cell["ci_low"] <= cell["mean"] <= cell["ci_high"] <= 1.0
     # Speckled "real" and clean "sim" are easy to tell apart: held-out real scores above raw simulation.
     assert table["real (held out)"]["mean"] > table["raw sim"]["mean"]
+    other = table["real (other recording)"]
+    assert other["n"] == 8 and other["mean"] > table["raw sim"]["mean"]
+    assert "real (other recording)" not in results["table"]["organic"]
     cyclegan = results["methods"]["cyclegan"]
     assert cyclegan["diversity"]["relative"] == 0.0  # deterministic translator: n identical samples
     assert results["methods"]["raw sim"]["c2st"]["accuracy"] >= 0.5

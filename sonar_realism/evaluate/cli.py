@@ -18,6 +18,7 @@ from tqdm import tqdm
 from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.suite import SimInput, SuiteConfig, Translator
+from sonar_realism.frames import SonarImage
 from sonar_realism.io import read_frames
 from sonar_realism.models.realism_cnn import RealismCNNConfig
 from sonar_realism.sim.masks import frames_with_masks
@@ -37,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n", type=int, default=4, help="samples per input from each translator (default 4)")
     parser.add_argument("--grid", default="128x128", help="model grid ROWSxCOLS (default 128x128)")
     parser.add_argument("--max-real", type=int, default=None, help="use at most this many real frames")
+    parser.add_argument("--yardstick", help="real frames of another recording (e.g. the translators' training "
+                                            "one), scored in Table I beside the held-out reference")
     parser.add_argument("--cnn-epochs", type=int, default=RealismCNNConfig.epochs, help="realism CNN epochs")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda or cuda:N)")
@@ -74,6 +77,15 @@ def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
     return items
 
 
+def _read_real(path: str, limit: int | None, label: str) -> list[SonarImage]:
+    frames = []
+    for frame in tqdm(read_frames(path), desc=label, unit="frame"):
+        frames.append(frame)
+        if limit and len(frames) >= limit:
+            break
+    return frames
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
@@ -90,14 +102,13 @@ def run(args: argparse.Namespace) -> int:
         if name in translators:
             name = f"{name}-{Path(path).stem}"
         translators[name], paths[name] = translator, path
-    real = []
-    for frame in tqdm(read_frames(args.real), desc="read real", unit="frame"):
-        real.append(frame)
-        if args.max_real and len(real) >= args.max_real:
-            break
+    real = _read_real(args.real, args.max_real, "read real")
+    other = _read_real(args.yardstick, args.max_real, "read yardstick") if args.yardstick else []
     sim = _sim_inputs(args)
-    result = run_suite(real, sim, translators, config, log=lambda line: print(line, file=sys.stderr))
-    report = write_report(result, args.out, {"real": str(args.real), "sim": args.sim or args.scenes,
+    result = run_suite(real, sim, translators, config, log=lambda line: print(line, file=sys.stderr),
+                       other_real=other)
+    report = write_report(result, args.out, {"real": str(args.real), "yardstick": args.yardstick,
+                                             "sim": args.sim or args.scenes,
                                              "models": paths, "command": args.command_line})
     print(f"report: {report}", file=sys.stderr)
     table = result.summary["table"]["all"]

@@ -12,7 +12,7 @@ import numpy as np
 
 from sonar_realism import plots
 from sonar_realism.evaluate.realism import PAPER_TABLE_I
-from sonar_realism.evaluate.suite import RAW_SIM, REAL_HELD_OUT, SuiteResult
+from sonar_realism.evaluate.suite import RAW_SIM, REAL_HELD_OUT, REAL_OTHER, SuiteResult
 from sonar_realism.report_html import Figure, Row, Section, Table, Text, to_markdown, write_html
 
 GRID_INPUTS_PER_CATEGORY = 2
@@ -106,7 +106,8 @@ def _figures(result: SuiteResult, out: Path) -> dict[str, Path]:
                                             "Intensity histogram", "intensity (per-frame max = 1)",
                                             "density (log scale)", logy=True)
     table = result.summary["table"]["all"]
-    names = [n for n in table if n != REAL_HELD_OUT] + [REAL_HELD_OUT]
+    reals = [n for n in (REAL_OTHER, REAL_HELD_OUT) if n in table]
+    names = [n for n in table if n not in reals] + reals
     figures["table"] = plots.bar_plot(names, [table[n]["mean"] for n in names], out / "eval_table.png",
                                       "Realism CNN score (mean with 95% CI)", "P(real)",
                                       errors=[(table[n]["ci_high"] - table[n]["ci_low"]) / 2 for n in names])

@@ -42,6 +42,7 @@ from sonar_realism.models.realism_cnn import RealismCNNConfig, embeddings, reali
 
 RAW_SIM = "raw sim"
 REAL_HELD_OUT = "real (held out)"
+REAL_OTHER = "real (other recording)"
 
 
 class Translator(Protocol):
@@ -157,12 +158,19 @@ def _method_metrics(outputs: np.ndarray, native: list[np.ndarray], inputs: np.nd
 
 
 def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput], translators: dict[str, Translator],
-              config: SuiteConfig | None = None, log: Callable[[str], None] = lambda _: None) -> SuiteResult:
-    """Train the realism CNN, translate the scored sim inputs, and compute every metric per method."""
+              config: SuiteConfig | None = None, log: Callable[[str], None] = lambda _: None,
+              other_real: Sequence[SonarImage] = ()) -> SuiteResult:
+    """Train the realism CNN, translate the scored sim inputs, and compute every metric per method.
+
+    `other_real`: real frames of another recording of the sensor (e.g. the translators' training recording),
+    scored by the realism CNN as a yardstick in Table I: what the CNN, trained on one recording against the
+    simulator, makes of real frames from outside that recording (on the Oculus set it calls the other recording
+    simulated, docs/RESULTS.md)."""
     config = config or SuiteConfig()
     config.validate()
-    if RAW_SIM in translators or REAL_HELD_OUT in translators:
-        raise ConfigError(f"translator names {RAW_SIM!r} and {REAL_HELD_OUT!r} are reserved")
+    reserved = (RAW_SIM, REAL_HELD_OUT, REAL_OTHER)
+    if any(name in translators for name in reserved):
+        raise ConfigError(f"translator names {', '.join(map(repr, reserved))} are reserved")
     real = np.concatenate([to_model_grid(f, config.grid, "frame_max").reshape(-1, *config.grid) for f in real_frames])
     if len(real) < 2 * config.c2st_folds:
         raise ConfigError(f"need at least {2 * config.c2st_folds} real frames, got {len(real)}")
@@ -207,6 +215,10 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
             chosen = per_input if category == "all" else per_input[labels == category]
             table[category][name] = dataclasses.asdict(summarize_scores(chosen, seed=config.seed))
     table["all"][REAL_HELD_OUT] = dataclasses.asdict(summarize_scores(realism_scores(cnn, reference), config.seed))
+    if other_real:
+        other = np.concatenate([to_model_grid(f, config.grid, "frame_max").reshape(-1, *config.grid)
+                                for f in other_real])
+        table["all"][REAL_OTHER] = dataclasses.asdict(summarize_scores(realism_scores(cnn, other), config.seed))
 
     reference_features = embeddings(cnn, reference)
     methods = {}
@@ -219,6 +231,7 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     summary = {
         "config": to_dict(config),
         "data": {"n_real": len(real), "n_real_cnn": len(real_cnn_idx), "n_real_reference": len(reference),
+                 "n_real_other": len(other_real),
                  "n_sim_cnn": len(train_sim), "n_sim_scored": len(scored),
                  "sim_scored_per_category": {c: int((labels == c).sum()) for c in categories}},
         "table": table,
