@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 from pathlib import Path
 
 import torch
 
+from sonar_realism.config import from_dict
 from sonar_realism.models.cdfcvae import CDFCVAE, load_checkpoint, save_checkpoint
 from sonar_realism.models.learned_texture import TextureFitConfig
 from sonar_realism.models.train import fit_model_texture, texture_frames
@@ -38,7 +40,8 @@ def main() -> None:
     parser.add_argument("--texture", choices=["speckle", "learned"], help="the texture layer (default: as is)")
     parser.add_argument("--sim", help="simulated frames the learned texture is drawn on while it is fitted "
                                       "(default: the real frames' own decoded means)")
-    parser.add_argument("--steps", type=int, help="the learned texture's fit steps (default: TextureFitConfig's)")
+    parser.add_argument("--texture-fit", help="JSON of TextureFitConfig fields for the learned texture's fit "
+                                              "(default: TextureFitConfig's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", required=True, help="where to write the refitted checkpoint")
     args = parser.parse_args()
@@ -51,7 +54,8 @@ def main() -> None:
         missing = refitted.load_state_dict(kept, strict=False).missing_keys  # the texture layer is fitted below
         assert all(key.startswith("texture.") for key in missing), missing
         model = refitted.eval()
-    schedule = TextureFitConfig() if args.steps is None else TextureFitConfig(steps=args.steps)
+    schedule = from_dict(TextureFitConfig, json.loads(Path(args.texture_fit).read_text()) if args.texture_fit else {},
+                         args.texture_fit or "")
     recordings = {name.strip() for name in args.recordings.split(",") if name.strip()} if args.recordings else None
     fit_model_texture(model, texture_frames(args.real, recordings), info.get("normalisation", "frame_max"),
                       torch.device("cpu"), args.seed, schedule, progress=True,

@@ -23,7 +23,10 @@ def _on_one_thread():
         yield
 
 
-QUICK = TextureFitConfig(steps=60, crop=32, batch=4, generator_lr=1e-3)  # a fast rate: 60 steps are enough
+# A fast rate: 60 steps are enough for the marginal when it outweighs the critic. At the shipped weight the
+# unpaired fit's error ratio spread from 0.05 to 0.83 over seeds (float-level differences in the order of
+# operations grow through the adversarial steps); at a marginal weight of 5 it stayed under 0.4 on five seeds.
+QUICK = TextureFitConfig(steps=60, crop=32, batch=4, generator_lr=1e-3, marginal_weight=5.0)
 
 
 def _sensor_like_frames(count: int, seed: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
