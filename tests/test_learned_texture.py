@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from sonar_realism.config import from_dict
 from sonar_realism.errors import ConfigError
@@ -104,6 +105,37 @@ def test_the_fits_grain_is_the_grain_statistic_and_ignores_blobs_the_texture_add
     np.testing.assert_allclose(fit_grain, _lag1(_detrended(as_tensor(frames))).numpy(), atol=0.05)
     around_mean_field = _lag1(as_tensor(blobbed) - 1.0).numpy()
     assert (around_mean_field > fit_grain + 0.1).all()
+
+
+def test_the_fitted_generator_is_the_moving_average_of_its_steps():
+    """With ema_decay the fit keeps the warmed-up exponential average of the generator's weights over its steps,
+    not the last step's; the steps themselves are the same either way."""
+    images, means = _sensor_like_frames(3)
+    schedule = TextureFitConfig(steps=12, crop=32, batch=2, generator_lr=1e-3, ema_decay=0.9)
+    trajectory: list[torch.Tensor] = []
+    texture = LearnedTexture()
+    generator_parameters = {id(p) for p in texture.generator.parameters()}
+
+    def record(optimizer, *_):
+        if any(id(p) in generator_parameters for group in optimizer.param_groups for p in group["params"]):
+            trajectory.append(torch.cat([p.detach().flatten() for p in texture.generator.parameters()]))
+
+    start = torch.cat([p.detach().flatten() for p in texture.generator.parameters()])
+    handle = register_optimizer_step_post_hook(record)
+    try:
+        texture.fit(images, means, seed=0, schedule=schedule)
+    finally:
+        handle.remove()
+    expected = start.clone()
+    for step, weights in enumerate(trajectory):
+        decay = min(schedule.ema_decay, (1 + step) / (10 + step))
+        expected = decay * expected + (1 - decay) * weights
+    fitted = torch.cat([p.detach().flatten() for p in texture.generator.parameters()])
+    assert len(trajectory) == schedule.steps
+    torch.testing.assert_close(fitted, expected, rtol=1e-5, atol=1e-6)
+    assert (fitted - trajectory[-1]).abs().max() > 1e-4  # the average is not the last step
+    with pytest.raises(ConfigError, match="ema"):
+        TextureFitConfig(ema_decay=1.0).validate()
 
 
 def test_samples_are_max_scaled_8_bit_differ_between_draws_and_repeat_with_a_seed():
