@@ -54,8 +54,8 @@ def main() -> None:
         missing = refitted.load_state_dict(kept, strict=False).missing_keys  # the texture layer is fitted below
         assert all(key.startswith("texture.") for key in missing), missing
         model = refitted.eval()
-    schedule = from_dict(TextureFitConfig, json.loads(Path(args.texture_fit).read_text()) if args.texture_fit else {},
-                         args.texture_fit or "")
+    schedule = (from_dict(TextureFitConfig, json.loads(Path(args.texture_fit).read_text()), args.texture_fit)
+                if args.texture_fit else TextureFitConfig())
     recordings = {name.strip() for name in args.recordings.split(",") if name.strip()} if args.recordings else None
     fit_model_texture(model, texture_frames(args.real, recordings), info.get("normalisation", "frame_max"),
                       torch.device("cpu"), args.seed, schedule, progress=True,

@@ -4,8 +4,8 @@ translations of training-sim frames against the fit recording's frames the textu
     python scripts/select_texture.py --sim runs/sim_calibrated_train \
         --model a=runs/texfit/paired0/ema/model.safetensors --model b=runs/texfit/paired1/ema/model.safetensors
 
-The learned texture is fitted on TEXTURE_FIT_FRAMES frames evenly spaced over the recording
-(models/train.py); the frames between them are the reference here. They are neighbours of fitted pings, so the
+The learned texture is fitted on the frames `models.train.texture_fit_indices` picks, evenly spaced over the
+recording; the frames between them are the reference here. They are neighbours of fitted pings, so the
 test reads lower than on another recording: it ranks candidates, it does not measure the goal. Nothing of the
 held-out recording is read. Lower accuracy is better (0.5: not told apart).
 """
@@ -27,7 +27,7 @@ from translator_goals import folder_frames, real_frames  # noqa: E402
 from sonar_realism.data import OCULUS_FIT_RECORDING  # noqa: E402
 from sonar_realism.evaluate.two_sample import TextureTestConfig, texture_two_sample_test  # noqa: E402
 from sonar_realism.models.datasets import normalise  # noqa: E402
-from sonar_realism.models.train import TEXTURE_FIT_FRAMES  # noqa: E402
+from sonar_realism.models.train import texture_fit_indices  # noqa: E402
 from sonar_realism.models.translate import load_translator  # noqa: E402
 
 
@@ -41,7 +41,7 @@ def main() -> int:
     torch.set_num_threads(1)
 
     fit = real_frames(OCULUS_FIT_RECORDING)
-    fitted = set(np.linspace(0, len(fit) - 1, min(TEXTURE_FIT_FRAMES, len(fit))).astype(int).tolist())
+    fitted = set(texture_fit_indices(len(fit)).tolist())
     reference = [normalise(frame, "frame_max") for i, frame in enumerate(fit) if i not in fitted]
     inputs = folder_frames(args.sim, args.n_sim)
     print(f"{len(reference)} reference frames of {OCULUS_FIT_RECORDING} (not fitted on), {len(inputs)} sim inputs")

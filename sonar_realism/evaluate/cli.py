@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from itertools import islice
 from pathlib import Path
 
 from tqdm import tqdm
@@ -78,12 +79,7 @@ def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
 
 
 def _read_real(path: str, limit: int | None, label: str) -> list[SonarImage]:
-    frames = []
-    for frame in tqdm(read_frames(path), desc=label, unit="frame"):
-        frames.append(frame)
-        if limit and len(frames) >= limit:
-            break
-    return frames
+    return list(islice(tqdm(read_frames(path), desc=label, unit="frame"), limit or None))
 
 
 def run(args: argparse.Namespace) -> int:

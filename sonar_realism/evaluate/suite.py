@@ -81,6 +81,11 @@ class SuiteResult:
     artifacts: dict[str, Any]  # arrays for the figures
 
 
+def _on_grid(frames: Sequence[SonarImage], grid: tuple[int, int]) -> np.ndarray:
+    """Frames on the model grid, max-scaled, one image per sample: [images, rows, cols]."""
+    return np.concatenate([to_model_grid(f, grid, "frame_max").reshape(-1, *grid) for f in frames])
+
+
 def _halves(n: int) -> tuple[np.ndarray, np.ndarray]:
     first = np.arange(n // 2)
     return first, np.arange(n // 2, n)
@@ -171,7 +176,8 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     reserved = (RAW_SIM, REAL_HELD_OUT, REAL_OTHER)
     if any(name in translators for name in reserved):
         raise ConfigError(f"translator names {', '.join(map(repr, reserved))} are reserved")
-    real = np.concatenate([to_model_grid(f, config.grid, "frame_max").reshape(-1, *config.grid) for f in real_frames])
+    real = _on_grid(real_frames, config.grid)
+    other = _on_grid(other_real, config.grid) if other_real else None
     if len(real) < 2 * config.c2st_folds:
         raise ConfigError(f"need at least {2 * config.c2st_folds} real frames, got {len(real)}")
     real_cnn_idx, real_ref_idx = _halves(len(real))
@@ -215,9 +221,7 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
             chosen = per_input if category == "all" else per_input[labels == category]
             table[category][name] = dataclasses.asdict(summarize_scores(chosen, seed=config.seed))
     table["all"][REAL_HELD_OUT] = dataclasses.asdict(summarize_scores(realism_scores(cnn, reference), config.seed))
-    if other_real:
-        other = np.concatenate([to_model_grid(f, config.grid, "frame_max").reshape(-1, *config.grid)
-                                for f in other_real])
+    if other is not None:
         table["all"][REAL_OTHER] = dataclasses.asdict(summarize_scores(realism_scores(cnn, other), config.seed))
 
     reference_features = embeddings(cnn, reference)
@@ -231,7 +235,7 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     summary = {
         "config": to_dict(config),
         "data": {"n_real": len(real), "n_real_cnn": len(real_cnn_idx), "n_real_reference": len(reference),
-                 "n_real_other": len(other_real),
+                 "n_real_other": 0 if other is None else len(other),
                  "n_sim_cnn": len(train_sim), "n_sim_scored": len(scored),
                  "sim_scored_per_category": {c: int((labels == c).sum()) for c in categories}},
         "table": table,

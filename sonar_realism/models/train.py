@@ -461,8 +461,13 @@ def fit_model_texture(model: CDFCVAE, frames: list[SonarImage], normalisation: s
         model.texture.fit(images, means, seed=seed)
 
 
+def texture_fit_indices(count: int) -> np.ndarray:
+    """Which of `count` frames the texture is fitted on: TEXTURE_FIT_FRAMES of them, evenly spaced."""
+    return np.linspace(0, count - 1, min(TEXTURE_FIT_FRAMES, count)).astype(int)
+
+
 def _evenly_spaced(frames: list[SonarImage]) -> list[SonarImage]:
-    return [frames[i] for i in np.linspace(0, len(frames) - 1, min(TEXTURE_FIT_FRAMES, len(frames))).astype(int)]
+    return [frames[i] for i in texture_fit_indices(len(frames))]
 
 
 def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out: str | Path, *,
