@@ -1,9 +1,12 @@
 """The learned texture: an adversarial fit on real-like frames, sampling as the sensor exports, the checkpoint."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file, save_file
 from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from sonar_realism.config import from_dict
@@ -11,7 +14,14 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.statistics import _detrend, lag_correlation
 from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
 from sonar_realism.models.device import one_thread
-from sonar_realism.models.learned_texture import GRAIN_DETREND, LearnedTexture, TextureFitConfig, _detrended, _lag1
+from sonar_realism.models.learned_texture import (
+    GRAIN_DETREND,
+    LearnedTexture,
+    TextureFitConfig,
+    _detrended,
+    _lag1,
+    mixture_of,
+)
 from sonar_realism.models.train import TrainConfig
 
 
@@ -114,13 +124,13 @@ def test_the_fitted_generator_is_the_moving_average_of_its_steps():
     schedule = TextureFitConfig(steps=12, crop=32, batch=2, generator_lr=1e-3, ema_decay=0.9)
     trajectory: list[torch.Tensor] = []
     texture = LearnedTexture()
-    generator_parameters = {id(p) for p in texture.generator.parameters()}
+    generator_parameters = {id(p) for p in texture.generators[0].parameters()}
 
     def record(optimizer, *_):
         if any(id(p) in generator_parameters for group in optimizer.param_groups for p in group["params"]):
-            trajectory.append(torch.cat([p.detach().flatten() for p in texture.generator.parameters()]))
+            trajectory.append(torch.cat([p.detach().flatten() for p in texture.generators[0].parameters()]))
 
-    start = torch.cat([p.detach().flatten() for p in texture.generator.parameters()])
+    start = torch.cat([p.detach().flatten() for p in texture.generators[0].parameters()])
     handle = register_optimizer_step_post_hook(record)
     try:
         texture.fit(images, means, seed=0, schedule=schedule)
@@ -130,7 +140,7 @@ def test_the_fitted_generator_is_the_moving_average_of_its_steps():
     for step, weights in enumerate(trajectory):
         decay = min(schedule.ema_decay, (1 + step) / (10 + step))
         expected = decay * expected + (1 - decay) * weights
-    fitted = torch.cat([p.detach().flatten() for p in texture.generator.parameters()])
+    fitted = torch.cat([p.detach().flatten() for p in texture.generators[0].parameters()])
     assert len(trajectory) == schedule.steps
     torch.testing.assert_close(fitted, expected, rtol=1e-5, atol=1e-6)
     assert (fitted - trajectory[-1]).abs().max() > 1e-4  # the average is not the last step
@@ -179,3 +189,59 @@ def test_the_learned_texture_travels_in_the_checkpoint(tmp_path):
     mean = np.stack(means[:1])
     assert np.array_equal(model.texture.sample(mean, torch.Generator().manual_seed(1)),
                           loaded.texture.sample(mean, torch.Generator().manual_seed(1)))
+
+
+def _flat(module: torch.nn.Module) -> torch.Tensor:
+    return torch.cat([p.detach().flatten() for p in module.parameters()])
+
+
+def test_a_mixture_fits_its_kth_generator_from_seed_plus_k_and_draws_them_in_turn():
+    images, means = _sensor_like_frames(3)
+    schedule = TextureFitConfig(steps=4, crop=32, batch=2)
+    torch.manual_seed(0)
+    mixture = LearnedTexture(2)
+    alone = LearnedTexture()
+    alone.generators[0].load_state_dict(mixture.generators[1].state_dict())
+    record = mixture.fit(images, means, seed=5, schedule=schedule)
+    alone.fit(images, means, seed=6, schedule=schedule)
+    torch.testing.assert_close(_flat(mixture.generators[1]), _flat(alone.generators[0]))
+    assert record.steps == 2 * schedule.steps
+    assert (_flat(mixture.generators[0]) - _flat(mixture.generators[1])).abs().max() > 1e-3
+    # the second generator drawing the bare mean field: its samples are the mean field as the sensor exports it
+    with torch.no_grad():
+        mixture.generators[1].out.weight.zero_()
+        mixture.generators[1].out.bias.zero_()
+    bare = np.round(means[0] / means[0].max() * 255) / 255
+    for seed in range(4):
+        samples = mixture.sample(np.stack([means[0]] * 5), torch.Generator().manual_seed(seed))
+        plain = [bool(np.allclose(sample, bare, atol=1e-6)) for sample in samples]
+        assert plain in ([False, True, False, True, False], [True, False, True, False, True])
+    again = mixture.sample(np.stack([means[0]] * 5), torch.Generator().manual_seed(3))
+    assert np.array_equal(samples, again)
+
+
+def test_a_mixture_travels_in_the_checkpoint_and_a_texture_saved_before_mixtures_still_loads(tmp_path):
+    cfg = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8, 16), latent_dim=8, bottleneck_hw=(2, 2), skips=2,
+                        texture="learned", texture_generators=2)
+    images, means = _sensor_like_frames(2)
+    model = CDFCVAE(cfg)
+    model.texture.fit(images, means, schedule=TextureFitConfig(steps=2, crop=32, batch=2))
+    loaded, _ = load_checkpoint(save_checkpoint(model, tmp_path / "mixed.safetensors"))
+    mean = np.stack(means[:1] * 3)
+    assert len(loaded.texture.generators) == 2
+    assert np.array_equal(model.texture.sample(mean, torch.Generator().manual_seed(1)),
+                          loaded.texture.sample(mean, torch.Generator().manual_seed(1)))
+    # a checkpoint of one generator as versions before mixtures named it
+    single = CDFCVAE(dataclasses.replace(cfg, texture_generators=1))
+    single.texture.generators[0].load_state_dict(model.texture.generators[0].state_dict())
+    single.texture.fitted.fill_(1.0)
+    path = save_checkpoint(single, tmp_path / "old.safetensors")
+    tensors = {key.replace("texture.generators.0.", "texture.generator."): value
+               for key, value in load_file(str(path)).items()}
+    save_file(tensors, str(path), metadata={"format": "sonar_realism.cdfcvae"})
+    old, _ = load_checkpoint(path)
+    torch.testing.assert_close(_flat(old.texture.generators[0]), _flat(model.texture.generators[0]))
+    with pytest.raises(ConfigError, match="texture_generators"):
+        CDFCVAEConfig(texture="speckle", texture_generators=2).validate()
+    with pytest.raises(ConfigError, match="fitted"):
+        mixture_of([LearnedTexture()])

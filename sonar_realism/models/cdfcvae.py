@@ -33,7 +33,7 @@ from torch import nn
 
 from sonar_realism.config import from_dict, to_dict
 from sonar_realism.errors import ConfigError, FormatError
-from sonar_realism.models.learned_texture import LearnedTexture
+from sonar_realism.models.learned_texture import LearnedTexture, current_state
 from sonar_realism.models.speckle import SpeckleField
 from sonar_realism.models.vgg import RELU_INDEX, VGGFeatures
 
@@ -62,6 +62,9 @@ class CDFCVAEConfig:
     # and the training target is the frame's local mean; "learned": the same, with a texture generator trained
     # against a patch critic on real frames (models/learned_texture.py); "none": the paper's decoder output as is.
     texture: Literal["none", "speckle", "learned"] = "none"
+    # with texture "learned": how many independently fitted generators the texture draws from, in turn
+    # (models/learned_texture.py)
+    texture_generators: int = 1
     # "input": the mean field's detail finer than the decoder's output (its output_stride) comes from the input
     # frame: decoded × T(x) / coarse(T(x)), T the reconstruction target. The decoder sets the level, the input
     # keeps its sharp edges (seabed onset, targets, shadows), which a coarse decoder blurs. "none": as decoded.
@@ -89,6 +92,9 @@ class CDFCVAEConfig:
             raise ConfigError("model.latent_dim and model.bottleneck_hw must be positive")
         if not 0.0 <= self.dropout < 1.0:
             raise ConfigError(f"model.dropout {self.dropout}: in [0, 1)")
+        if self.texture_generators < 1 or (self.texture_generators > 1 and self.texture != "learned"):
+            raise ConfigError(f"model.texture_generators {self.texture_generators}: at least 1, and more only with "
+                              "texture 'learned'")
         if self.detail == "input" and self.output_stride < 2:
             raise ConfigError("model.detail 'input' takes the detail finer than the decoder's output from the input; "
                               "with output_stride 1 there is none (use 2 or more, or detail 'none')")
@@ -227,7 +233,8 @@ class CDFCVAE(nn.Module):
         self.encoder_sim = Encoder(cfg)
         self.decoder = Decoder(cfg)
         self.texture: SpeckleField | LearnedTexture | None = (
-            SpeckleField() if cfg.texture == "speckle" else LearnedTexture() if cfg.texture == "learned" else None)
+            SpeckleField() if cfg.texture == "speckle"
+            else LearnedTexture(cfg.texture_generators) if cfg.texture == "learned" else None)
         self.register_buffer("target_blur", _gaussian_kernel(TARGET_BLUR_SIGMA), persistent=False)
 
     def reconstruction_target(self, x: torch.Tensor) -> torch.Tensor:
@@ -385,6 +392,8 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
         raise FormatError(str(path), "file", f"not a readable safetensors file ({exc})") from exc
     model = CDFCVAE(cfg)
     expected = model.state_dict()
+    if isinstance(model.texture, LearnedTexture):
+        tensors = current_state(tensors, "texture.")
     if "texture.export_knee" in expected and "texture.export_knee" not in tensors:
         # a speckle layer fitted before the export knee exported with a hard clip at full scale: it keeps doing so
         tensors["texture.export_knee"] = torch.ones(())

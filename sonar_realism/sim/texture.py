@@ -104,13 +104,13 @@ def _learned_generator(texture: LearnedSensorTexture) -> LearnedTexture:
     from safetensors import SafetensorError
     from safetensors.torch import load
 
-    from sonar_realism.models.learned_texture import LearnedTexture
+    from sonar_realism.models.learned_texture import LearnedTexture, current_state, generator_count
 
     try:
-        weights = load(base64.b64decode(texture.safetensors_base64, validate=True))
+        weights = current_state(load(base64.b64decode(texture.safetensors_base64, validate=True)), "")
     except (binascii.Error, ValueError, SafetensorError) as exc:
         raise ConfigError(f"learned_texture.safetensors_base64: not base64 of a safetensors file ({exc})") from exc
-    module = LearnedTexture()
+    module = LearnedTexture(max(generator_count(weights), 1))
     try:
         module.load_state_dict(weights)
     except RuntimeError as exc:
