@@ -54,7 +54,7 @@ def main() -> None:
     model, info = mixed(args.checkpoint)
     extra = {key: value for key, value in info.items()
              if key not in ("format", "version", "model") and not key.startswith("texture_")}
-    names = [Path(path).parent.name + "/" + Path(path).name for path in args.checkpoint]
+    names = ["/".join(Path(path).parts[-3:]) for path in args.checkpoint]  # no machine's absolute path
     print(f"wrote {save_checkpoint(model, args.out, {**extra, 'texture_mixed_from': names})}")
 
 
