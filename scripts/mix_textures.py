@@ -1,8 +1,8 @@
 """Join the learned textures of checkpoints that share every other weight into one checkpoint whose texture draws
 from all their generators in turn (models/learned_texture.py: a mixture).
 
-`train` fits a mixture's generators one after another (`model.texture_generators`); this joins generators fitted
-apart, e.g. by `scripts/refit_texture.py --texture learned --seed K` in parallel processes, one per core:
+`train` fits a mixture's generators itself (`model.texture_generators`, one per core); this joins generators fitted
+apart, in other runs of `scripts/refit_texture.py --texture learned --seed K` or on other machines:
 
     python scripts/mix_textures.py --checkpoint runs/texfit/seed0/model.safetensors \\
         --checkpoint runs/texfit/seed1/model.safetensors --out runs/texfit/mix01/model.safetensors

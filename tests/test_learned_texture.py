@@ -220,6 +220,19 @@ def test_a_mixture_fits_its_kth_generator_from_seed_plus_k_and_draws_them_in_tur
     assert np.array_equal(samples, again)
 
 
+def test_a_mixtures_generators_fitted_side_by_side_are_the_ones_fitted_in_turn():
+    """Each generator is fitted on one thread, so two forked workers give the very weights one process gives."""
+    images, means = _sensor_like_frames(3)
+    schedule = TextureFitConfig(steps=4, crop=32, batch=2)
+    fitted = []
+    for workers in (1, 2):
+        torch.manual_seed(0)
+        mixture = LearnedTexture(2)
+        record = mixture.fit(images, means, seed=3, schedule=schedule, workers=workers)
+        fitted.append((_flat(mixture), record.critic_loss))
+    assert torch.equal(fitted[0][0], fitted[1][0]) and fitted[0][1] == fitted[1][1]
+
+
 def test_a_mixture_travels_in_the_checkpoint_and_a_texture_saved_before_mixtures_still_loads(tmp_path):
     cfg = CDFCVAEConfig(grid=(32, 32), widths=(4, 8, 8, 16), latent_dim=8, bottleneck_hw=(2, 2), skips=2,
                         texture="learned", texture_generators=2)

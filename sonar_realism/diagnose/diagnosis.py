@@ -24,7 +24,6 @@ from sonar_realism.diagnose.gap import (
     headline,
     representative_subset,
 )
-from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.result import (
     AmbiguousGroup,
     Auc,
@@ -65,6 +64,7 @@ from sonar_realism.diagnose.which import (
 from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
+from sonar_realism.parallel import parallel_map
 from sonar_realism.sim.effects import Effect
 
 # Fewer held-out frames a side than this and a bootstrap resample repeats most of them: no ranking is told apart.

@@ -49,7 +49,6 @@ from sonar_realism.diagnose.ghost import (
 )
 from sonar_realism.diagnose.leakage import LeakageCheck, check_leakage
 from sonar_realism.diagnose.near_field import find_ring_down, ring_down_from_excess
-from sonar_realism.diagnose.parallel import parallel_map
 from sonar_realism.diagnose.peaks import PeakCheck, check_peaks
 from sonar_realism.diagnose.result import (
     Alternative,
@@ -66,6 +65,7 @@ from sonar_realism.diagnose.smear import BLURS, SmearCheck, check_smear
 from sonar_realism.errors import FrameError
 from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
+from sonar_realism.parallel import parallel_map
 from sonar_realism.sim.effects import (
     BeamSidelobes,
     Effect,

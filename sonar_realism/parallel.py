@@ -1,6 +1,7 @@
-"""Independent fits of one diagnosis step on several cores: `parallel_map(task, items, workers)` runs task(item)
-for every item in forked worker processes. The task is usually a closure over frames and statistics; forking
-hands it and the items to the workers as they are (nothing is pickled but an index and the result)."""
+"""Independent fits on several cores (a diagnosis step's, a texture mixture's generators): `parallel_map(task,
+items, workers)` runs task(item) for every item in forked worker processes. The task is usually a closure over
+frames and statistics; forking hands it and the items to the workers as they are (nothing is pickled but an index
+and the result)."""
 
 from __future__ import annotations
 
