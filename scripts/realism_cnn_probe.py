@@ -29,16 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from translator_goals import GRID, folder_frames, real_frames  # noqa: E402
 
 from sonar_realism.data import OCULUS_FIT_RECORDING, OCULUS_HELD_OUT_RECORDING  # noqa: E402
-from sonar_realism.models.datasets import to_model_grid  # noqa: E402
+from sonar_realism.models.datasets import frames_on_grid  # noqa: E402
 from sonar_realism.models.realism_cnn import RealismCNNConfig, realism_scores, train_classifier  # noqa: E402
 from sonar_realism.models.translate import load_translator  # noqa: E402
 
 TEXTURE_BLUR = 2.0  # grid cells: what is finer than this is the grid-scale texture
 LIT = 0.15  # blurred level above which a cell counts as lit seabed
-
-
-def on_grid(frames: list) -> np.ndarray:
-    return np.stack([to_model_grid(f, GRID, "frame_max") for f in frames])
 
 
 def _blurred(images: np.ndarray) -> np.ndarray:
@@ -69,15 +65,16 @@ def main() -> int:
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    held = on_grid(real_frames(OCULUS_HELD_OUT_RECORDING))
+    held = frames_on_grid(real_frames(OCULUS_HELD_OUT_RECORDING), GRID)
     cnn_real, reference = held[:len(held) // 2], held[len(held) // 2:]
-    sim_train = on_grid(folder_frames(args.sim_train, args.n_sim))
+    sim_train = frames_on_grid(folder_frames(args.sim_train, args.n_sim), GRID)
     inputs = folder_frames(args.sim, args.n_sim)
     scored = {"real (held out, second half)": reference, "real (other recording)":
-              on_grid(real_frames(OCULUS_FIT_RECORDING, 3)), "raw sim": on_grid(inputs)}
+              frames_on_grid(real_frames(OCULUS_FIT_RECORDING, 3), GRID), "raw sim": frames_on_grid(inputs, GRID)}
     for spec in args.model:
         name, _, path = spec.partition("=")
-        scored[name] = on_grid([f.sample(0) for f in load_translator(path, "cpu").translate(inputs, n=1, seed=0)])
+        translated = load_translator(path, "cpu").translate(inputs, n=1, seed=0)
+        scored[name] = frames_on_grid([f.sample(0) for f in translated], GRID)
     variants = {name: images for name, images in scored.items()}
     for name in ("raw sim", *[spec.partition("=")[0] for spec in args.model]):
         for gain in args.texture_gains:

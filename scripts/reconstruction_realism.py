@@ -32,7 +32,7 @@ from sonar_realism.evaluate.two_sample import (
 )
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import read_frames
-from sonar_realism.models.datasets import from_model_grid, normalise, to_model_grid
+from sonar_realism.models.datasets import frames_on_grid, from_model_grid, normalise, to_model_grid
 from sonar_realism.models.translate import load_translator
 from sonar_realism.sim.texture import local_mean
 
@@ -71,11 +71,11 @@ def main() -> int:
                   "reconstruction": [reconstruction(f) for f in half_b],
                   "speckle around own level": [speckle_around_own_level(f) for f in half_b]}
     native_a = [normalise(f, "frame_max") for f in half_a]
-    grid_a = np.stack([to_model_grid(f, GRID, "frame_max") for f in half_a])
+    grid_a = frames_on_grid(half_a, GRID)
     rows: dict[str, dict[str, list[float]]] = {}
     for name, native in candidates.items():
-        grid = np.stack([to_model_grid(f.replace(intensity=image, intensity_scale=1.0), GRID, "frame_max")
-                         for f, image in zip(half_b, native, strict=True)])
+        grid = frames_on_grid([f.replace(intensity=image, intensity_scale=1.0)
+                               for f, image in zip(half_b, native, strict=True)], GRID)
         texture = [texture_two_sample_test(native_a, native, TextureTestConfig(seed=s)) for s in args.seeds]
         whole = [classifier_two_sample_test(grid_a, grid, seed=s) for s in args.seeds]
         rows[name] = {"texture_accuracy": _field(texture, "accuracy"), "texture_auc": _field(texture, "auc"),

@@ -49,7 +49,7 @@ from sonar_realism.evaluate.two_sample import (  # noqa: E402
     texture_two_sample_test,
 )
 from sonar_realism.frames import SonarImage  # noqa: E402
-from sonar_realism.models.datasets import to_model_grid  # noqa: E402
+from sonar_realism.models.datasets import frames_on_grid  # noqa: E402
 from sonar_realism.sim.annotations import (  # noqa: E402
     AnnotatedObject,
     mask_objects,
@@ -109,8 +109,8 @@ def object_statistics(frames: list[SonarImage], objects: Sequence[Sequence[Annot
 
 def classifiers(real: list[SonarImage], other: list[SonarImage], seed: int) -> dict[str, float]:
     torch.manual_seed(seed)
-    grid_real = np.stack([to_model_grid(f, GRID, "frame_max") for f in real])
-    grid_other = np.stack([to_model_grid(f, GRID, "frame_max") for f in other])
+    grid_real = frames_on_grid(real, GRID)
+    grid_other = frames_on_grid(other, GRID)
     whole = classifier_two_sample_test(grid_real, grid_other, seed=seed)
     texture = texture_two_sample_test(scaled(real), scaled(other), TextureTestConfig(seed=seed))
     # the AUC beside the accuracy: it does not depend on where the held-out scores are cut

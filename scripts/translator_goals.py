@@ -50,7 +50,7 @@ from sonar_realism.evaluate.two_sample import (  # noqa: E402
 )
 from sonar_realism.frames import SonarImage  # noqa: E402
 from sonar_realism.io import read_frames  # noqa: E402
-from sonar_realism.models.datasets import normalise, to_model_grid  # noqa: E402
+from sonar_realism.models.datasets import frames_on_grid, normalise, to_model_grid  # noqa: E402
 from sonar_realism.models.translate import load_translator  # noqa: E402
 from sonar_realism.sim.masks import read_mask  # noqa: E402
 
@@ -128,9 +128,9 @@ def main() -> int:
     held = folder_frames(args.held_out, args.max_real) if args.held_out else real_frames(OCULUS_HELD_OUT_RECORDING)
     fit = folder_frames(args.yardstick, args.max_real) if args.yardstick else real_frames(OCULUS_FIT_RECORDING, 3)
     held_native = [normalise(f, "frame_max") for f in held]
-    held_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in held])
+    held_grid = frames_on_grid(held, GRID)
     inputs, masks = sim_inputs(args.sim, args.per_folder)
-    input_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in inputs])
+    input_grid = frames_on_grid(inputs, GRID)
 
     results: dict[str, dict[str, object]] = {}
     previous = out / "goals.json"
@@ -139,14 +139,14 @@ def main() -> int:
     real_stats = texture_statistics(held_native, held_grid)
     if REAL_FIT not in results:
         fit_native = [normalise(f, "frame_max") for f in fit]
-        fit_grid = np.stack([to_model_grid(f, GRID, "frame_max") for f in fit])
+        fit_grid = frames_on_grid(fit, GRID)
         results[REAL_FIT] = {**two_sample(held_native, fit_native, held_grid, fit_grid, args.seeds),
                              **texture_statistics(fit_native, fit_grid)}
     print(f"yardstick done ({time.monotonic() - started:.0f} s)", file=sys.stderr)
 
     def measure(outputs: list[SonarImage], means: list[SonarImage]) -> dict[str, object]:
         first_native = [normalise(f.sample(0), "frame_max") for f in outputs]
-        first_grid = np.stack([to_model_grid(f.sample(0), GRID, "frame_max") for f in outputs])
+        first_grid = frames_on_grid([f.sample(0) for f in outputs], GRID)
         row: dict[str, object] = {**two_sample(held_native, first_native, held_grid, first_grid, args.seeds),
                                   **texture_statistics(first_native, first_grid)}
         if outputs[0].intensity.shape[0] >= 2:

@@ -37,7 +37,7 @@ from sonar_realism.evaluate.texture import (
 )
 from sonar_realism.evaluate.two_sample import TextureTestConfig, classifier_two_sample_test, texture_two_sample_test
 from sonar_realism.frames import SonarImage
-from sonar_realism.models.datasets import normalise, to_model_grid
+from sonar_realism.models.datasets import frames_on_grid, normalise, to_model_grid
 from sonar_realism.models.realism_cnn import RealismCNNConfig, embeddings, realism_scores, train_classifier
 
 RAW_SIM = "raw sim"
@@ -79,11 +79,6 @@ class SuiteConfig:
 class SuiteResult:
     summary: dict[str, Any]  # JSON-able: the table, the metrics, the data sizes
     artifacts: dict[str, Any]  # arrays for the figures
-
-
-def _on_grid(frames: Sequence[SonarImage], grid: tuple[int, int]) -> np.ndarray:
-    """Frames on the model grid, max-scaled, one image per sample: [images, rows, cols]."""
-    return np.concatenate([to_model_grid(f, grid, "frame_max").reshape(-1, *grid) for f in frames])
 
 
 def _halves(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -176,8 +171,8 @@ def run_suite(real_frames: Sequence[SonarImage], sim_inputs: Sequence[SimInput],
     reserved = (RAW_SIM, REAL_HELD_OUT, REAL_OTHER)
     if any(name in translators for name in reserved):
         raise ConfigError(f"translator names {', '.join(map(repr, reserved))} are reserved")
-    real = _on_grid(real_frames, config.grid)
-    other = _on_grid(other_real, config.grid) if other_real else None
+    real = frames_on_grid(real_frames, config.grid)
+    other = frames_on_grid(other_real, config.grid) if other_real else None
     if len(real) < 2 * config.c2st_folds:
         raise ConfigError(f"need at least {2 * config.c2st_folds} real frames, got {len(real)}")
     real_cnn_idx, real_ref_idx = _halves(len(real))

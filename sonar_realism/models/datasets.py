@@ -70,6 +70,12 @@ def to_model_grid(frame: SonarImage, grid: tuple[int, int], how: Normalisation) 
     return normalise(frame, how)
 
 
+def frames_on_grid(frames: Sequence[SonarImage], grid: tuple[int, int]) -> np.ndarray:
+    """Frames on the model grid, max-scaled, one image per sample: [images, grid rows, grid cols] (what the
+    whole-frame tests and the realism CNN take)."""
+    return np.concatenate([to_model_grid(f, grid, "frame_max").reshape(-1, *grid) for f in frames])
+
+
 def from_model_grid(frame: SonarImage, images: np.ndarray) -> np.ndarray:
     """The inverse of `to_model_grid`: float32 images [..., grid rows, grid cols] on `frame`'s own ranges and
     bearings, [..., frame.n_ranges, frame.n_beams]."""
