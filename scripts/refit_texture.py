@@ -60,7 +60,8 @@ def main() -> None:
     fit_model_texture(model, texture_frames(args.real, recordings), info.get("normalisation", "frame_max"),
                       torch.device("cpu"), args.seed, schedule, progress=True,
                       sim_frames=texture_frames(args.sim) if args.sim else None)
-    extra = {key: value for key, value in info.items() if key not in ("format", "version", "model")}
+    extra = {key: value for key, value in info.items()  # the source's texture provenance no longer holds
+             if key not in ("format", "version", "model") and not key.startswith("texture_")}
     print(f"wrote {save_checkpoint(model, args.out, {**extra, 'texture_refit_from': Path(args.checkpoint).name})}")
 
 

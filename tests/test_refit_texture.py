@@ -29,7 +29,8 @@ def test_refit_keeps_the_weights_switches_the_detail_and_refuses_a_recording_it_
     cfg = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0,
                         output_stride=2, upsample="resize_conv", texture="speckle")
     torch.manual_seed(0)
-    source = save_checkpoint(CDFCVAE(cfg), tmp_path / "before.safetensors", {"normalisation": "frame_max"})
+    source = save_checkpoint(CDFCVAE(cfg), tmp_path / "before.safetensors",
+                             {"normalisation": "frame_max", "texture_mixed_from": ["a", "b"]})
     write_frames([*_frames("rec_a", 0), *_frames("rec_b", 1)], tmp_path / "real")
     out = tmp_path / "after.safetensors"
     monkeypatch.setattr(sys, "argv", ["refit_texture.py", "--checkpoint", str(source), "--real",
@@ -40,6 +41,7 @@ def test_refit_keeps_the_weights_switches_the_detail_and_refuses_a_recording_it_
     after, info = load_checkpoint(out)
     assert after.cfg.detail == "input" and after.texture.is_fitted and not before.texture.is_fitted
     assert info["texture_refit_from"] == "before.safetensors" and info["normalisation"] == "frame_max"
+    assert "texture_mixed_from" not in info  # the old texture's provenance goes with it
     weights = {k: v for k, v in before.state_dict().items() if not k.startswith("texture.")}
     assert all(torch.equal(v, after.state_dict()[k]) for k, v in weights.items())
     monkeypatch.setattr(sys, "argv", ["refit_texture.py", "--checkpoint", str(source), "--real",
