@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 
 from sonar_realism.errors import ConfigError
-from sonar_realism.models.cdfcvae import CDFCVAE, load_checkpoint, save_checkpoint
+from sonar_realism.models.cdfcvae import CDFCVAE, load_checkpoint, retextured_info, save_checkpoint
 from sonar_realism.models.learned_texture import LearnedTexture, mixture_of
 
 
@@ -52,10 +52,8 @@ def main() -> None:
     if len(args.checkpoint) < 2:
         parser.error("--checkpoint: give two or more")
     model, info = mixed(args.checkpoint)
-    extra = {key: value for key, value in info.items()
-             if key not in ("format", "version", "model") and not key.startswith("texture_")}
     names = ["/".join(Path(path).parts[-3:]) for path in args.checkpoint]  # no machine's absolute path
-    print(f"wrote {save_checkpoint(model, args.out, {**extra, 'texture_mixed_from': names})}")
+    print(f"wrote {save_checkpoint(model, args.out, {**retextured_info(info), 'texture_mixed_from': names})}")
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from sonar_realism.config import from_dict
-from sonar_realism.models.cdfcvae import CDFCVAE, load_checkpoint, save_checkpoint
+from sonar_realism.models.cdfcvae import CDFCVAE, load_checkpoint, retextured_info, save_checkpoint
 from sonar_realism.models.learned_texture import TextureFitConfig
 from sonar_realism.models.train import fit_model_texture, texture_frames
 
@@ -60,9 +60,8 @@ def main() -> None:
     fit_model_texture(model, texture_frames(args.real, recordings), info.get("normalisation", "frame_max"),
                       torch.device("cpu"), args.seed, schedule, progress=True,
                       sim_frames=texture_frames(args.sim) if args.sim else None)
-    extra = {key: value for key, value in info.items()  # the source's texture provenance no longer holds
-             if key not in ("format", "version", "model") and not key.startswith("texture_")}
-    print(f"wrote {save_checkpoint(model, args.out, {**extra, 'texture_refit_from': Path(args.checkpoint).name})}")
+    extra = {**retextured_info(info), "texture_refit_from": Path(args.checkpoint).name}
+    print(f"wrote {save_checkpoint(model, args.out, extra)}")
 
 
 if __name__ == "__main__":

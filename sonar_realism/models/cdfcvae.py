@@ -342,6 +342,13 @@ def save_checkpoint(model: CDFCVAE, path: str | Path, extra: dict[str, Any] | No
     return path
 
 
+def retextured_info(info: dict[str, Any]) -> dict[str, Any]:
+    """What a checkpoint given a new texture keeps of its source's `info`, as `save_checkpoint`'s `extra`: all but
+    the header `save_checkpoint` writes itself and the old texture's provenance (`texture_*`)."""
+    return {key: value for key, value in info.items()
+            if key not in ("format", "version", "model") and not key.startswith("texture_")}
+
+
 def file_sha256(path: str | Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as fh:

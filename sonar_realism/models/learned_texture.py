@@ -238,8 +238,9 @@ class LearnedTexture(nn.Module):
             return {key: value.clone() for key, value in self.generators[k].state_dict().items()}, record
 
         on_cpu = self.fitted.device.type == "cpu"
-        cores = len(os.sched_getaffinity(0)) if workers is None else workers
-        fitted = parallel_map(fit_one, range(len(self.generators)), cores if on_cpu else 1)
+        if workers is None:  # the cores this process may use (sched_getaffinity is Linux's; elsewhere all of them)
+            workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        fitted = parallel_map(fit_one, range(len(self.generators)), workers if on_cpu else 1)
         for texture_generator, (state, _) in zip(self.generators, fitted, strict=True):
             texture_generator.load_state_dict(state)  # a forked worker fitted a copy
             texture_generator.eval()
@@ -271,10 +272,9 @@ def current_state(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, to
             for key, value in tensors.items()}
 
 
-def generator_count(tensors: dict[str, torch.Tensor], prefix: str = "") -> int:
-    """How many generators a learned texture's (current) tensors under `prefix` hold."""
-    start = f"{prefix}generators."
-    return len({key[len(start):].split(".", 1)[0] for key in tensors if key.startswith(start)})
+def generator_count(tensors: dict[str, torch.Tensor]) -> int:
+    """How many generators a learned texture's own tensors (as `current_state` names them) hold."""
+    return len({key.split(".", 2)[1] for key in tensors if key.startswith("generators.")})
 
 
 def _speckled_by(texture_generator: TextureGenerator, mean: torch.Tensor, position: torch.Tensor,
