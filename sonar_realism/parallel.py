@@ -1,12 +1,13 @@
-"""Independent fits on several cores (a diagnosis step's, a texture mixture's generators): `parallel_map(task,
-items, workers)` runs task(item) for every item in forked worker processes. The task is usually a closure over
-frames and statistics; forking hands it and the items to the workers as they are (nothing is pickled but an index
-and the result)."""
+"""Independent work on several cores (a simulator's frames, a diagnosis step's fits, a texture mixture's
+generators): `parallel_map(task, items, workers)` and its streaming form `parallel_imap` run task(item) for every
+item in forked worker processes, in order. The task is usually a closure over a world, frames or statistics; forking
+hands it and the items to the workers as they are (nothing is pickled but an index and the result), so the result is
+the same, in the same order, whatever the number of workers."""
 
 from __future__ import annotations
 
 import multiprocessing
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 import cv2
@@ -29,12 +30,16 @@ def _run(index: int) -> Any:
     return _task(_items[index])
 
 
-def parallel_map(task: Callable[[I], T], items: Sequence[I], workers: int) -> list[T]:
-    """[task(item) for item in items], computed by up to `workers` forked processes; in order. Serial where forking
-    is not available, for a single item or worker, and inside a worker (workers do not fork again)."""
+def parallel_imap(task: Callable[[I], T], items: Sequence[I], workers: int, chunksize: int = 1) -> Iterator[T]:
+    """task(item) for item in items, yielded in order as they are done by up to `workers` forked processes. Serial
+    where forking is not available, for a single item or worker, inside a worker (workers do not fork again) and
+    while another pool of this module is running."""
     global _task, _items
-    if workers <= 1 or len(items) <= 1 or _in_worker or "fork" not in multiprocessing.get_all_start_methods():
-        return [task(item) for item in items]
+    serial = workers <= 1 or len(items) <= 1 or _in_worker or _task is not None
+    if serial or "fork" not in multiprocessing.get_all_start_methods():
+        for item in items:
+            yield task(item)
+        return
     _task, _items = task, items
     # cv2's thread pool must be down when forking (a child cannot reconfigure the threads it did not inherit), and
     # one thread per worker is what the workers should use anyway
@@ -42,7 +47,12 @@ def parallel_map(task: Callable[[I], T], items: Sequence[I], workers: int) -> li
     cv2.setNumThreads(1)
     try:
         with multiprocessing.get_context("fork").Pool(min(workers, len(items)), initializer=_start_worker) as pool:
-            return pool.map(_run, range(len(items)), chunksize=1)
+            yield from pool.imap(_run, range(len(items)), chunksize=chunksize)
     finally:
         cv2.setNumThreads(threads)
         _task, _items = None, ()
+
+
+def parallel_map(task: Callable[[I], T], items: Sequence[I], workers: int) -> list[T]:
+    """[task(item) for item in items], computed as `parallel_imap` computes it."""
+    return list(parallel_imap(task, items, workers))

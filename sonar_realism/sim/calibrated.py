@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 
 from sonar_realism.frames import SonarImage, uniform_azimuths
+from sonar_realism.parallel import parallel_imap
 from sonar_realism.sim.calibration import MAX_TARGETS, Calibration, Estimate, GridMode, SeabedTerms
 from sonar_realism.sim.effects import Effect, GammaQuantization, apply_effects, resolve_effects
-from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.scene import Pose, Scene, Seabed, _ObjectMaker, _smooth_noise
 from sonar_realism.sim.sensor import SensorConfig
 from sonar_realism.sim.simulate import frame_for
@@ -289,4 +289,4 @@ def simulate_calibrated(calibration: Calibration, n: int, seed: int = 0, chain: 
         meta: dict[str, Any] = {**frame.meta, "source": "sim-calibrated", "calibration": calibration.source}
         return frame.replace(meta=meta), mask
 
-    yield from frames_in_parallel(one, n, workers)
+    yield from parallel_imap(one, range(n), workers, chunksize=2)

@@ -10,8 +10,8 @@ import numpy as np
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
+from sonar_realism.parallel import parallel_imap
 from sonar_realism.sim.effects import Effect, apply_effects, resolve_effects
-from sonar_realism.sim.parallel import frames_in_parallel
 from sonar_realism.sim.render import render
 from sonar_realism.sim.scene import Pose, Scene, build_scene
 from sonar_realism.sim.sensor import M1200D_1200KHZ, SensorConfig
@@ -51,7 +51,7 @@ def simulate(scene: str | Scene = "default", effects: str | Sequence[str | Effec
     parameters by name ({"speckle": {"shape_nu": 3}}). Frames are float32 amplitude, or uint8 when
     gamma_quantization is on; masks are uint8 object ids on the same [range, beam] grid. Everything is fixed by
     `seed`: the world (scene), and, per frame, the electronic noise and other per-ping draws, so `workers`
-    processes (sim/parallel.py) give the same frames in the same order as one.
+    processes (sonar_realism/parallel.py) give the same frames in the same order as one.
     """
     if not isinstance(n, int) or n < 0:
         raise ConfigError(f"n: expected a non-negative number of frames, got {n!r}")
@@ -67,4 +67,4 @@ def simulate(scene: str | Scene = "default", effects: str | Sequence[str | Effec
             frame = apply_effects(frame, chosen, np.random.default_rng([seed, index]))
         return frame, mask
 
-    yield from frames_in_parallel(one, len(poses), workers)
+    yield from parallel_imap(one, range(len(poses)), workers, chunksize=2)
