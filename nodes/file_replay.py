@@ -3,11 +3,10 @@ consumers take it, optionally looped and cut to [start_s, stop_s] of recording t
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 from sonar_realism.errors import ConfigError
-from sonar_realism.runtime.node import Node
+from sonar_realism.runtime.node import TimedSourceNode
 from sonar_realism.runtime.sources import ReplaySource
 
 
@@ -27,27 +26,13 @@ class FileReplayParams:
             raise ConfigError("file_replay: speed, start_s and stop_s must be >= 0")
 
 
-class FileReplayNode(Node):
+class FileReplayNode(TimedSourceNode):
     PARAMS = FileReplayParams
     OUTPUTS = {"frames": "polar"}
 
     def configure(self) -> None:
         p: FileReplayParams = self.params
         self.source = ReplaySource(p.path, p.speed, p.loop, p.start_s, p.stop_s, p.restamp)
-        self._pending = None
-
-    def produce(self) -> float | None:
-        if self._pending is None:
-            self._pending = self.source.next()
-            if self._pending is None:
-                return None
-        due, frame = self._pending
-        wait = due - time.monotonic()
-        if wait > 0:
-            return wait
-        self.publish("frames", frame)
-        self._pending = None
-        return 0.0
 
 
 NODE = FileReplayNode

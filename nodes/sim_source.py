@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 from sonar_realism.errors import ConfigError
-from sonar_realism.runtime.node import Node
+from sonar_realism.runtime.node import TimedSourceNode
 from sonar_realism.runtime.sources import SimSource, Trajectory
 
 
@@ -27,7 +26,7 @@ class SimSourceParams:
         self.trajectory.validate()
 
 
-class SimSourceNode(Node):
+class SimSourceNode(TimedSourceNode):
     PARAMS = SimSourceParams
     OUTPUTS = {"frames": "polar", "masks": "mask"}
 
@@ -35,21 +34,6 @@ class SimSourceNode(Node):
         p: SimSourceParams = self.params
         self.source = SimSource(p.scene, p.effects, p.count, p.seed, p.rate_hz, p.sensor, p.trajectory,
                                 calibration=p.calibration)
-        self._pending = None
-
-    def produce(self) -> float | None:
-        if self._pending is None:
-            self._pending = self.source.next()
-            if self._pending is None:
-                return None
-        due, frame, mask = self._pending
-        wait = due - time.monotonic()
-        if wait > 0:
-            return wait
-        self.publish("frames", frame)
-        self.publish("masks", mask)
-        self._pending = None
-        return 0.0
 
 
 NODE = SimSourceNode

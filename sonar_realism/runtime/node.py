@@ -713,3 +713,26 @@ class Node:
             state.other_topics.add(topic)
             log.warning("node %s: input %s takes topic %r only; frames on topic %r are ignored (counted as "
                         "other_topic)", self.name, input_name, state.wiring.topic, topic)
+
+
+class TimedSourceNode(Node):
+    """A source node over a timed source (runtime/sources.py): `configure` sets `self.source`, whose `next()`
+    hands out `(due, message per output, in OUTPUTS order)` or None when finished; each item is published on
+    every output once `time.monotonic()` reaches `due`."""
+
+    source: Any
+    _due_item: tuple | None = None
+
+    def produce(self) -> float | None:
+        if self._due_item is None:
+            self._due_item = self.source.next()
+            if self._due_item is None:
+                return None
+        due, *messages = self._due_item
+        wait = due - time.monotonic()
+        if wait > 0:
+            return wait
+        for output, message in zip(self.OUTPUTS, messages, strict=True):
+            self.publish(output, message)
+        self._due_item = None
+        return 0.0
