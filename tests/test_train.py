@@ -192,11 +192,16 @@ def test_a_learned_texture_is_fitted_after_cycle_2_on_the_simulated_frames_and_a
     model = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1,
                           dropout=0.0, output_stride=2, upsample="resize_conv", texture="learned")
     cfg = TrainConfig(model=model, perceptual=TINY_LOSS, batch_size=4, epochs1=1, epochs2=1,
-                      texture_fit=TextureFitConfig(steps=2, crop=32, batch=2))
+                      texture_fit=TextureFitConfig(steps=3, crop=32, batch=2, generator_lr=1e-2))
     assert fit(cfg, real, sim, tmp_path / "run", device="cpu", progress=False)["finished"]
     # the sim encoder is not trained at cycle 1's end, so the texture waits for cycle 2 to know what it draws on
     assert not load_checkpoint(tmp_path / "run" / "cycle1.safetensors")[0].texture.is_fitted
-    assert load_checkpoint(tmp_path / "run" / "model.safetensors")[0].texture.is_fitted
+    fitted = load_checkpoint(tmp_path / "run" / "model.safetensors")[0]
+    assert fitted.texture.is_fitted
+    # the generators were trained, not left as cycle 2 ended with them (its optimiser froze the whole model once)
+    before = load_file(tmp_path / "run" / "state.safetensors")
+    generators = {k: v for k, v in fitted.state_dict().items() if k.startswith("texture.generators.")}
+    assert max((v.float() - before[f"best.{k}"].float()).abs().max().item() for k, v in generators.items()) > 1e-2
     assert fit(cfg, real, None, tmp_path / "real_only", device="cpu", progress=False)["finished"]
     assert load_checkpoint(tmp_path / "real_only" / "cycle1.safetensors")[0].texture.is_fitted
 

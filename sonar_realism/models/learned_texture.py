@@ -298,6 +298,9 @@ def _fit_generator(texture_generator: TextureGenerator, images: list[np.ndarray]
     device = edges.device
     crop = schedule.crop
     critic = patch_classifier(schedule.critic_width).to(device)
+    # the fit trains its generator whatever the caller froze: `train` freezes the whole model between its cycles,
+    # and a frozen generator let the critic win at once while its weights stayed at their initial values
+    texture_generator.requires_grad_(True)
     generator_opt = torch.optim.Adam(texture_generator.parameters(), schedule.generator_lr, betas=(0.5, 0.99))
     critic_opt = torch.optim.Adam(critic.parameters(), schedule.critic_lr, betas=(0.5, 0.99))
     probabilities = torch.linspace(0.01, 0.99, MARGINAL_QUANTILES, device=device)
