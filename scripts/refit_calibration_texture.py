@@ -60,13 +60,15 @@ def main(argv: list[str] | None = None) -> int:
         chain = match_near_field(calibration, calibration.effect_chain(), near_field_profile(images),
                                  config.mounting_frames, args.seed)
         calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
-    calibration = with_learned_texture(calibration, images, args.steps, args.seed, progress=True)
+    calibration = with_learned_texture(calibration, images, args.steps, args.seed, config.learned_generators,
+                                       progress=True)
     chain = match_noise_floor(calibration, calibration.effect_chain(), target.near_zero, config.mounting_frames,
                               args.seed)
     calibration = dataclasses.replace(calibration, effects={e.name: e.params() for e in chain})
     calibration = match_export_knee(calibration, chain, target, float(np.median([top_ratio(i) for i in images])),
                                     config.mounting_frames, args.seed)
-    calibration = with_learned_texture(calibration, images, args.steps, args.seed, progress=True)
+    calibration = with_learned_texture(calibration, images, args.steps, args.seed, config.learned_generators,
+                                       progress=True)
     calibration.validate()
     save_calibration(calibration, args.out)
     assert calibration.learned_texture is not None

@@ -90,8 +90,11 @@ def _texture_said(c: Calibration) -> str:
         return "the catalogue's speckle"
     if c.learned_texture is None:
         return "the recording's speckle, fitted"
-    return (f"a generator trained on the simulated levels against the recording ({c.learned_texture.steps} steps, "
-            f"critic loss {c.learned_texture.critic_loss:.3f}; 1.386 is a critic at chance)")
+    count = c.learned_texture.generators
+    drawn = "a generator" if count == 1 else f"a mixture of {count} generators"
+    return (f"{drawn} trained on the simulated levels against the recording ({c.learned_texture.steps} steps"
+            f"{'' if count == 1 else ' each'}, critic loss {c.learned_texture.critic_loss:.3f}; 1.386 is a critic at "
+            "chance)")
 
 
 def write_report(result: CalibrationResult, path: str | Path) -> Path:

@@ -89,7 +89,8 @@ class SensorTexture:
 class LearnedSensorTexture:
     """The recording's texture as a generator trained against a patch critic (models/learned_texture.py), drawn
     in place of the fitted speckle: its weights as a safetensors file, base64-encoded, so CALIB.json stays one
-    self-contained file (about 0.2 MB); `critic_loss` is the fit's last (2 ln 2 = 1.386: the critic at chance)."""
+    self-contained file (about 0.2 MB per generator); `steps` are each generator's; `critic_loss` is the fit's last,
+    averaged over the generators (2 ln 2 = 1.386: the critic at chance)."""
 
     safetensors_base64: str
     steps: int
@@ -97,6 +98,11 @@ class LearnedSensorTexture:
 
     def validate(self) -> None:
         _learned_generator(self)  # decodes and loads the weights: ConfigError on anything wrong
+
+    @property
+    def generators(self) -> int:
+        """How many generators the texture draws from in turn (a mixture when more than one)."""
+        return len(_learned_generator(self).generators)
 
 
 @functools.lru_cache(maxsize=4)
@@ -122,10 +128,12 @@ def _learned_generator(texture: LearnedSensorTexture) -> LearnedTexture:
 
 
 def fit_learned_texture(images: list[np.ndarray], draw_on: list[np.ndarray], seed: int = 0,
-                        steps: int = DEFAULT_LEARNED_STEPS, progress: bool = False) -> LearnedSensorTexture:
-    """Train the texture generator on the simulator's local mean levels `draw_on` (full-scale units, what
-    `apply_texture` draws on: `sim/calibrated.texture_levels`) against real frames scaled to their maximum, the
-    same frames `fit_texture` uses, unpaired (models/learned_texture.py)."""
+                        steps: int = DEFAULT_LEARNED_STEPS, generators: int = 1,
+                        progress: bool = False) -> LearnedSensorTexture:
+    """Train the texture generator (a mixture of `generators`, side by side on the available cores) on the
+    simulator's local mean levels `draw_on` (full-scale units, what `apply_texture` draws on:
+    `sim/calibrated.texture_levels`) against real frames scaled to their maximum, the same frames `fit_texture`
+    uses, unpaired (models/learned_texture.py)."""
     import torch
     from safetensors.torch import save
 
@@ -136,10 +144,10 @@ def fit_learned_texture(images: list[np.ndarray], draw_on: list[np.ndarray], see
     # the same generator from the same seed, whatever ran before it and on any thread count
     with one_thread():
         torch.manual_seed(seed)
-        module = LearnedTexture()
+        module = LearnedTexture(generators)
         record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress, draw_on=draw_on)
     encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
-    return LearnedSensorTexture(encoded, record.steps, round(record.critic_loss, 4))
+    return LearnedSensorTexture(encoded, record.steps // generators, round(record.critic_loss, 4))
 
 
 @functools.lru_cache(maxsize=4)
