@@ -14,14 +14,16 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
 3. the seabed: its roughness (`_match_relief`: no more relief shadow than the recording's dark seabed allows),
    then patch contrast, correlation length and dark share of the mean level, matched by simulation;
    targets: how often a shadow shows behind a return, its width (the target's size) and where it starts, then
-   (under the final chain) the share, size and return gain that make the same detector find the same in
-   simulation (`match_shadow_targets`: it misses targets and takes some seabed for one); or, with
+   (under the final chain and mounting) the share and return gain that make the same detector find them as
+   often and as bright in simulation (`match_shadow_targets`: it misses targets and takes some seabed for
+   one); or, with
    `--targets-from`, the recording's own annotations (sim/annotations.py: YOLO boxes or class-id masks): how
    many frames show a target, how many each shows, their width across the fan, range and return;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py);
 5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
-   default, also a texture generator trained on the simulated levels against the recording), which simulation
+   default, also a mixture of texture generators trained on the simulated levels against the recording), which
+   simulation
    draws in place of the catalogue's speckle; the seabed look matched again under it; then the near-field band
    (`match_near_field`: the ring-down's amplitude, decay and the receiver's rise on the band's own profile);
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
