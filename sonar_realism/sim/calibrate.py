@@ -24,8 +24,8 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
 5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
    default, also a mixture of texture generators trained on the simulated levels against the recording), which
    simulation draws in place of the catalogue's speckle; the seabed look matched again under it; then the
-   near-field band
-   (`match_near_field`: the ring-down's amplitude, decay and the receiver's rise on the band's own profile);
+   near-field band (`match_near_field`: the ring-down's amplitude, decay and the receiver's rise on the band's
+   own profile);
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
    noise floor (the TVG noise amplitude whose share of black pixels is the recording's) and the residual
    range/bearing gain; then the export knee (`match_export_knee`); last, with `learned`, the generator again on
