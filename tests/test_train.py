@@ -6,12 +6,14 @@ import json
 
 import numpy as np
 import pytest
+import torch
 from safetensors.torch import load_file
 
 from sonar_realism.config import from_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
+from sonar_realism.models import train as train_module
 from sonar_realism.models.cdfcvae import CDFCVAEConfig, PerceptualConfig, load_checkpoint
 from sonar_realism.models.datasets import load_grid_frames, split_by_recording
 from sonar_realism.models.learned_texture import TextureFitConfig
@@ -185,7 +187,8 @@ def test_cycle1_checkpoint_retargets_to_another_simulator_training_only_the_sim_
             real, sim, tmp_path / "other", device="cpu", progress=False, cycle1=first / "cycle1.safetensors")
 
 
-def test_a_learned_texture_is_fitted_after_cycle_2_on_the_simulated_frames_and_after_cycle_1_without_them(tmp_path):
+def test_a_learned_texture_is_fitted_after_cycle_2_on_the_simulated_frames_and_after_cycle_1_without_them(
+        tmp_path, monkeypatch):
     real, sim = tmp_path / "real", tmp_path / "sim"
     write_frames(_frames(6, "rec_a", 0, shape=(64, 64)), real)
     write_frames(_frames(4, "sim", 2, shape=(64, 64)), sim)
@@ -193,7 +196,17 @@ def test_a_learned_texture_is_fitted_after_cycle_2_on_the_simulated_frames_and_a
                           dropout=0.0, output_stride=2, upsample="resize_conv", texture="learned")
     cfg = TrainConfig(model=model, perceptual=TINY_LOSS, batch_size=4, epochs1=1, epochs2=1,
                       texture_fit=TextureFitConfig(steps=3, crop=32, batch=2, generator_lr=1e-2))
+    fitted_on = []
+    real_fit = train_module.fit_model_texture
+
+    def recording_the_weights(model, *args, **kwargs):
+        fitted_on.append({k: v.clone() for k, v in model.state_dict().items() if k.startswith("decoder.")})
+        return real_fit(model, *args, **kwargs)
+
+    monkeypatch.setattr(train_module, "fit_model_texture", recording_the_weights)
     assert fit(cfg, real, sim, tmp_path / "run", device="cpu", progress=False)["finished"]
+    # fitted on the decoder as the half-precision checkpoint holds it, which is what `translate` decodes with
+    assert len(fitted_on) == 1 and all(torch.equal(v, v.half().float()) for v in fitted_on[0].values())
     # the sim encoder is not trained at cycle 1's end, so the texture waits for cycle 2 to know what it draws on
     assert not load_checkpoint(tmp_path / "run" / "cycle1.safetensors")[0].texture.is_fitted
     fitted = load_checkpoint(tmp_path / "run" / "model.safetensors")[0]

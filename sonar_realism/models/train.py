@@ -328,7 +328,15 @@ class Trainer:
 
     def fit_texture(self, real_dir: str | Path, train_recordings: set[str],
                     sim_frames: list[SonarImage] | None = None) -> None:
-        """Fit the texture layer on the training recordings' frames (see `fit_model_texture`)."""
+        """Fit the texture layer on the training recordings' frames (see `fit_model_texture`), on the weights as
+        the checkpoint will hold them: the texture learns the decoded means `translate` will draw on (a half-
+        precision checkpoint rounds them; `scripts/refit_texture.py`, which loads the checkpoint, fitted the
+        shipped texture on the rounded ones while `train` fitted on the unrounded)."""
+        if self.cfg.half_precision_checkpoint:
+            with torch.no_grad():
+                for tensor in self.model.state_dict().values():
+                    if tensor.is_floating_point():
+                        tensor.copy_(tensor.half().float())
         fit_model_texture(self.model, texture_frames(real_dir, train_recordings), self.cfg.normalisation,
                           self.device, self.cfg.seed, self.cfg.texture_fit, self.progress, sim_frames)
 
