@@ -139,7 +139,8 @@ class CalibrateConfig:
     # "learned": fit the recording's own speckle (sim/texture.py), then train a texture generator on the simulated
     # levels against the recording and draw it in place of the catalogue's speckle (Oculus, held out: texture
     # two-sample test 0.92 against the fitted speckle's 0.98 in the same run, docs/RESULTS.md, #11; two fits of
-    # `learned_steps`, about 12 minutes on one thread); "speckle": draw the fitted speckle; "none": the catalogue's
+    # `learned_steps`, each about 12 minutes on one thread per generator); "speckle": draw the fitted speckle;
+    # "none": the catalogue's
     texture: str = "learned"
     learned_steps: int = DEFAULT_LEARNED_STEPS
     # the learned texture as a mixture of this many generators, each fitted on one thread from its own seed, side
