@@ -328,6 +328,15 @@ def sidecar_path(path: str | Path) -> Path:
     return Path(path).with_suffix(".json")
 
 
+def round_to_half(model: CDFCVAE) -> None:
+    """Every floating weight and buffer of `model` rounded in place to what a half-precision checkpoint
+    (`save_checkpoint(..., half=True)`) holds, kept in float32."""
+    with torch.no_grad():
+        for tensor in model.state_dict().values():
+            if tensor.is_floating_point():
+                tensor.copy_(tensor.half().float())
+
+
 def save_checkpoint(model: CDFCVAE, path: str | Path, extra: dict[str, Any] | None = None,
                     half: bool = False) -> Path:
     """Write weights (safetensors; fp16 if `half`) and a JSON sidecar with the config and `extra` info."""

@@ -45,6 +45,7 @@ from sonar_realism.models.cdfcvae import (
     PerceptualConfig,
     PerceptualLoss,
     load_checkpoint,
+    round_to_half,
     save_checkpoint,
 )
 from sonar_realism.models.datasets import (
@@ -333,10 +334,7 @@ class Trainer:
         precision checkpoint rounds them; `scripts/refit_texture.py`, which loads the checkpoint, fitted the
         shipped texture on the rounded ones while `train` fitted on the unrounded)."""
         if self.cfg.half_precision_checkpoint:
-            with torch.no_grad():
-                for tensor in self.model.state_dict().values():
-                    if tensor.is_floating_point():
-                        tensor.copy_(tensor.half().float())
+            round_to_half(self.model)
         fit_model_texture(self.model, texture_frames(real_dir, train_recordings), self.cfg.normalisation,
                           self.device, self.cfg.seed, self.cfg.texture_fit, self.progress, sim_frames)
 

@@ -16,9 +16,9 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    targets: how often a shadow shows behind a return, its width (the target's size) and where it starts, then
    (under the final chain and mounting) the share and return gain that make the same detector find them as
    often and as bright in simulation (`match_shadow_targets`: it misses targets and takes some seabed for
-   one); or, with
-   `--targets-from`, the recording's own annotations (sim/annotations.py: YOLO boxes or class-id masks): how
-   many frames show a target, how many each shows, their width across the fan, range and return;
+   one); or, with `--targets-from`, the recording's own annotations (sim/annotations.py: YOLO boxes or
+   class-id masks): how many frames show a target, how many each shows, their width across the fan, range and
+   return;
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py);
 5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
@@ -140,7 +140,7 @@ class CalibrateConfig:
     # levels against the recording and draw it in place of the catalogue's speckle (Oculus, held out: texture
     # two-sample test 0.92 against the fitted speckle's 0.98 in the same run, docs/RESULTS.md, #11; two fits of
     # `learned_steps`, each about 12 minutes on one thread per generator); "speckle": draw the fitted speckle;
-    # "none": the catalogue's
+    # "none": the catalogue's speckle
     texture: str = "learned"
     learned_steps: int = DEFAULT_LEARNED_STEPS
     # the learned texture as a mixture of this many generators, each fitted on one thread from its own seed, side
@@ -893,7 +893,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
 
 
 def with_learned_texture(calibration: Calibration, images: list[np.ndarray], steps: int, seed: int,
-                         generators: int = 1, progress: bool = False) -> Calibration:
+                         generators: int, progress: bool = False) -> Calibration:
     """`calibration` with a texture generator trained for `steps` on its own simulated levels (FIT_FRAMES views,
     its effect chain) against the recording `images` (scaled to their maximum), unpaired: the generator learns
     what the simulated scene lacks as well as the sensor's grain. Fitted around the recording's own local
