@@ -66,7 +66,7 @@ def test_fit_brings_the_samples_log_ratio_distribution_towards_the_frames():
     before = texture.sample(np.stack(means[:3]), torch.Generator().manual_seed(0))
     torch.manual_seed(0)
     texture = LearnedTexture()
-    record = texture.fit(images, means, seed=0, schedule=QUICK)
+    [record] = texture.fit(images, means, seed=0, schedule=QUICK)
     after = texture.sample(np.stack(means[:3]), torch.Generator().manual_seed(0))
     target = _log_ratio_quantiles(images, means)
     # Samples are max-scaled as the frames are, so both compare against the same mean fields.
@@ -202,10 +202,10 @@ def test_a_mixture_fits_its_kth_generator_from_seed_plus_k_and_draws_them_in_tur
     mixture = LearnedTexture(2)
     alone = LearnedTexture()
     alone.generators[0].load_state_dict(mixture.generators[1].state_dict())
-    record = mixture.fit(images, means, seed=5, schedule=schedule)
+    records = mixture.fit(images, means, seed=5, schedule=schedule)
     alone.fit(images, means, seed=6, schedule=schedule)
     torch.testing.assert_close(_flat(mixture.generators[1]), _flat(alone.generators[0]))
-    assert record.steps == 2 * schedule.steps
+    assert [record.steps for record in records] == [schedule.steps] * 2
     assert (_flat(mixture.generators[0]) - _flat(mixture.generators[1])).abs().max() > 1e-3
     # the second generator drawing the bare mean field: its samples are the mean field as the sensor exports it
     with torch.no_grad():
@@ -228,8 +228,8 @@ def test_a_mixtures_generators_fitted_side_by_side_are_the_ones_fitted_in_turn()
     for workers in (1, 2):
         torch.manual_seed(0)
         mixture = LearnedTexture(2)
-        record = mixture.fit(images, means, seed=3, schedule=schedule, workers=workers)
-        fitted.append((_flat(mixture), record.critic_loss))
+        records = mixture.fit(images, means, seed=3, schedule=schedule, workers=workers)
+        fitted.append((_flat(mixture), [record.critic_loss for record in records]))
     assert torch.equal(fitted[0][0], fitted[1][0]) and fitted[0][1] == fitted[1][1]
 
 

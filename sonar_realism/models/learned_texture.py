@@ -197,7 +197,8 @@ class LearnedTexture(nn.Module):
 
     def fit(self, images: list[np.ndarray], means: list[np.ndarray], seed: int = 0,
             schedule: TextureFitConfig = DEFAULT_FIT, progress: bool = False,
-            draw_on: list[np.ndarray] | None = None, workers: int | None = None) -> TextureFitRecord:
+            draw_on: list[np.ndarray] | None = None, workers: int | None = None
+            ) -> list[TextureFitRecord]:
         """Train each generator (the k-th from `seed` + k) against a patch critic on real frames (scaled to their
         maximum) and a mean field of each, on the same grid at the sensor's resolution.
 
@@ -213,7 +214,7 @@ class LearnedTexture(nn.Module):
         frames' own means, the texture learns nothing of the scene it will sit on; on the simulator's, it learns
         to turn that scene's soft blotches into the sensor's texture (docs/RESULTS.md).
 
-        The record sums steps and seconds over the generators and averages their losses."""
+        Returns each generator's record, in order."""
         drawn_on = means if draw_on is None else draw_on
         if not images or len(images) != len(means) or not drawn_on:
             raise ConfigError(f"learned texture fit: need real frames and one mean field each, got {len(images)} "
@@ -244,11 +245,8 @@ class LearnedTexture(nn.Module):
         for texture_generator, (state, _) in zip(self.generators, fitted, strict=True):
             texture_generator.load_state_dict(state)  # a forked worker fitted a copy
             texture_generator.eval()
-        records = [record for _, record in fitted]
         self.fitted.fill_(1.0)
-        return TextureFitRecord(steps=sum(r.steps for r in records), seconds=sum(r.seconds for r in records),
-                                critic_loss=float(np.mean([r.critic_loss for r in records])),
-                                marginal_loss=float(np.mean([r.marginal_loss for r in records])))
+        return [record for _, record in fitted]
 
 
 def mixture_of(textures: Sequence[LearnedTexture]) -> LearnedTexture:

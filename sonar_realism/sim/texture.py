@@ -145,9 +145,10 @@ def fit_learned_texture(images: list[np.ndarray], draw_on: list[np.ndarray], see
     with one_thread():
         torch.manual_seed(seed)
         module = LearnedTexture(generators)
-        record = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress, draw_on=draw_on)
+        records = module.fit(*_fit_pairs(images, schedule.crop), seed, schedule, progress, draw_on=draw_on)
     encoded = base64.b64encode(save({k: v.contiguous() for k, v in module.state_dict().items()})).decode("ascii")
-    return LearnedSensorTexture(encoded, record.steps // generators, round(record.critic_loss, 4))
+    critic_loss = sum(record.critic_loss for record in records) / len(records)
+    return LearnedSensorTexture(encoded, schedule.steps, round(critic_loss, 4))
 
 
 @functools.lru_cache(maxsize=4)
