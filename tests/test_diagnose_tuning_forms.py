@@ -70,6 +70,18 @@ def test_lorentzian_blur_spreads_a_point_along_range_with_heavy_tails():
     assert out[ROW, BEAM] < 0.8
 
 
+def test_random_yaw_smears_each_ping_across_beams_by_its_own_rate_and_never_along_range():
+    widths = []
+    for seed in range(6):
+        out = run("motion_blur/random_yaw_triangle", point(), seed=seed, yaw_rate_deg_s=60.0, rate_spread=0.6,
+                  integration_s=0.3)
+        lit = np.flatnonzero(out[ROW] > 2 * 0.02)
+        assert lit.size >= 3 and lit.min() < BEAM < lit.max()  # a triangle about the echo (the shear is < a beam)
+        assert out[ROW + 3, BEAM] == pytest.approx(0.02, rel=0.05)  # nothing along range
+        widths.append(lit.size)
+    assert len(set(widths)) > 1  # each ping turns at its own rate
+
+
 def test_gaussian_smear_spreads_across_beams_with_yaw_and_along_range_with_surge():
     across = run("motion_blur/gaussian_smear", point(), yaw_rate_deg_s=60.0, surge_m_s=0.0, integration_s=0.25)
     along = run("motion_blur/gaussian_smear", point(), yaw_rate_deg_s=0.0, surge_m_s=2.0, integration_s=0.25)

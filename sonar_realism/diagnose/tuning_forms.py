@@ -12,7 +12,8 @@ held-out half (`diagnose/heldout/`) stays untouched. Run them with
 | tvg_noise          | complex noise scaled by the TVG curve     | real noise on the amplitude, level linear in dB    |
 | elevation_spread   | two-way sinc^2 vertical pattern           | cos^m vertical pattern with a floor                |
 | multipath          | sharp copy at a fixed offset              | blurred, weaker copy at a fixed offset             |
-| motion_blur        | shear + box smears                        | shear + Gaussian smears                            |
+| motion_blur        | shear + box smears                        | shear + Gaussian smears; a per-ping random yaw     |
+|                    |                                           | rate with a triangular window, no range smear      |
 | ring_down          | exponential decay, per-ping beam ripple   | flat shoulder with a logistic fall, fixed ripple   |
 | interference       | arcs across the whole fan                 | partial arcs over part of the fan                  |
 | gamma_quantization | power law then 8-bit rounding             | two-slope linear transfer then 8-bit rounding      |
@@ -214,3 +215,30 @@ def two_slope(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
     low = u * (p["knee_out"] / p["knee_in"])
     high = p["knee_out"] + (u - p["knee_in"]) * (1.0 - p["knee_out"]) / (1.0 - p["knee_in"])
     return np.round(255 * np.where(u < p["knee_in"], low, high)).astype(np.uint8)
+
+
+# added after round 17: last, so every earlier form keeps its draws
+@tuning_form("motion_blur", "random_yaw_triangle",
+             yaw_rate_deg_s=Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s"),
+             rate_spread=Param((0.2, 0.6), (0.0, 1.0)),
+             integration_s=Param((0.05, 0.25), (0.02, 0.4), "integration_s"))
+def random_yaw_triangle(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                        instrument: np.random.Generator) -> np.ndarray:
+    """A platform that yaws back and forth: each ping turns at its own rate, `yaw_rate_deg_s` times a factor
+    drawn per ping around 1 (relative spread `rate_spread`) with a random sign, while the receiver averages over
+    a window whose weights rise and fall linearly (a triangle of full width `integration_s`); the rows heard later
+    are turned further (the shear). No smear along range."""
+    rate = math.radians(p["yaw_rate_deg_s"]) * max(0.0, 1.0 + p["rate_spread"] * float(ping.standard_normal()))
+    rate *= 1.0 if ping.random() < 0.5 else -1.0
+    step = (frame.azimuths_rad[-1] - frame.azimuths_rad[0]) / max(x.shape[1] - 1, 1)
+    power = (x * x).astype(np.float32)
+    shift = rate * 2 * frame.ranges_m / SOUND_SPEED_MPS / step  # beams, per row
+    cols = np.arange(x.shape[1], dtype=np.float32)[None, :] - shift[:, None].astype(np.float32)
+    rows = np.repeat(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape[1], axis=1)
+    power = cv2.remap(power, cols.astype(np.float32), rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    half_width = abs(rate) * p["integration_s"] / 2 / step  # beams
+    if half_width > 0.5:
+        taps = np.arange(-math.ceil(half_width), math.ceil(half_width) + 1, dtype=np.float64)
+        triangle = np.maximum(1.0 - np.abs(taps) / half_width, 0.0)
+        power = _convolve_power(np.sqrt(power), triangle, axis=1) ** 2
+    return np.sqrt(np.maximum(power, 0.0)).astype(np.float32)
