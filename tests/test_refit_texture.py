@@ -1,7 +1,10 @@
-"""scripts/refit_texture.py: a checkpoint's speckle layer refitted with the current rule, its weights kept."""
+"""scripts/refit_texture.py: a checkpoint's texture layer refitted with the current rule, its weights kept; with the
+training run's seed, a learned texture's refit is that run's own texture step."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import sys
 
 import numpy as np
@@ -11,7 +14,9 @@ import torch
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.io import write_frames
-from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, load_checkpoint, save_checkpoint
+from sonar_realism.models.cdfcvae import CDFCVAE, CDFCVAEConfig, PerceptualConfig, load_checkpoint, save_checkpoint
+from sonar_realism.models.learned_texture import TextureFitConfig
+from sonar_realism.models.train import TrainConfig, fit
 from tests.repo_script import load_repo_script
 
 refit = load_repo_script("scripts/refit_texture.py", "refit_texture_under_test")
@@ -48,3 +53,31 @@ def test_refit_keeps_the_weights_switches_the_detail_and_refuses_a_recording_it_
                                       str(tmp_path / "real"), "--recordings", "rec_z", "--out", str(out)])
     with pytest.raises(ConfigError, match="rec_z"):
         refit.main()
+
+
+def test_a_learned_texture_refit_with_the_runs_seed_is_the_runs_own_texture_step(tmp_path, monkeypatch):
+    """Not a second pass over the checkpoint's fitted generators: the refit starts the texture where `train` does."""
+    write_frames(_frames("rec_a", 0), tmp_path / "real")
+    write_frames(_frames("sim", 2)[:4], tmp_path / "sim")
+    model = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0,
+                          output_stride=2, upsample="resize_conv", texture="learned", texture_generators=2)
+    schedule = TextureFitConfig(steps=3, crop=32, batch=2, generator_lr=1e-2)
+    cfg = TrainConfig(model=model, perceptual=PerceptualConfig(layers=("relu1_1",), layer_weights=(1.0,),
+                                                               weights="random"),
+                      batch_size=4, epochs1=1, epochs2=1, texture_fit=schedule, seed=3)
+    assert fit(cfg, tmp_path / "real", tmp_path / "sim", tmp_path / "run", device="cpu", progress=False)["finished"]
+    (tmp_path / "schedule.json").write_text(json.dumps(dataclasses.asdict(schedule)))
+    trained = tmp_path / "run" / "model.safetensors"
+    for seed, out in ((3, tmp_path / "same.safetensors"), (4, tmp_path / "other.safetensors")):
+        monkeypatch.setattr(sys, "argv", ["refit_texture.py", "--checkpoint", str(trained), "--real",
+                                          str(tmp_path / "real"), "--sim", str(tmp_path / "sim"), "--texture-fit",
+                                          str(tmp_path / "schedule.json"), "--seed", str(seed), "--out", str(out)])
+        refit.main()
+
+    def texture(path):
+        return {k: v for k, v in load_checkpoint(path)[0].state_dict().items() if k.startswith("texture.")}
+
+    original, same = texture(trained), texture(tmp_path / "same.safetensors")
+    other = texture(tmp_path / "other.safetensors")
+    assert all(torch.equal(v, same[k]) for k, v in original.items())
+    assert not all(torch.equal(v, other[k]) for k, v in original.items())
