@@ -40,6 +40,18 @@ def _convolve_power(x: np.ndarray, kernel: np.ndarray, axis: int) -> np.ndarray:
     return np.sqrt(np.maximum(spread, 0.0)).astype(np.float32)
 
 
+def _yaw_sheared_power(x: np.ndarray, frame: SonarImage, yaw_rate_rad_s: float) -> tuple[np.ndarray, float]:
+    """The power of amplitude `x` with each row turned by the yaw during its two-way travel time (rows heard later
+    are turned further), and the beam step (rad) it was measured in."""
+    step = (frame.azimuths_rad[-1] - frame.azimuths_rad[0]) / max(x.shape[1] - 1, 1)
+    shift = yaw_rate_rad_s * 2 * frame.ranges_m / SOUND_SPEED_MPS / step  # beams, per row
+    cols = np.arange(x.shape[1], dtype=np.float32)[None, :] - shift[:, None].astype(np.float32)
+    rows = np.repeat(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape[1], axis=1)
+    power = cv2.remap((x * x).astype(np.float32), cols.astype(np.float32), rows, cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_CONSTANT)
+    return power, step
+
+
 @tuning_form("speckle", "multilook_box",
              looks=Param((1.0, 2.0), (1.0, 4.0), integer=True),
              cells_beams=Param((1.0, 3.0), (1.0, 5.0), "grain_beams", integer=True),
@@ -149,12 +161,7 @@ def gaussian_smear(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: 
     weights are Gaussian (rms `integration_s` / 2) rather than flat; each row is also heard 2r/c later, so it is
     turned further (a shear across beams)."""
     yaw = math.radians(p["yaw_rate_deg_s"])
-    step = (frame.azimuths_rad[-1] - frame.azimuths_rad[0]) / max(x.shape[1] - 1, 1)
-    power = (x * x).astype(np.float32)
-    shift = yaw * 2 * frame.ranges_m / SOUND_SPEED_MPS / step  # beams, per row
-    cols = np.arange(x.shape[1], dtype=np.float32)[None, :] - shift[:, None].astype(np.float32)
-    rows = np.repeat(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape[1], axis=1)
-    power = cv2.remap(power, cols.astype(np.float32), rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    power, step = _yaw_sheared_power(x, frame, yaw)
     sigma_beams = abs(yaw) * p["integration_s"] / 2 / step
     sigma_ranges = abs(p["surge_m_s"]) * p["integration_s"] / 2 / bin_m(frame)
     if max(sigma_beams, sigma_ranges) > 0.1:
@@ -230,15 +237,10 @@ def random_yaw_triangle(x: np.ndarray, frame: SonarImage, p: dict[str, float], p
     are turned further (the shear). No smear along range."""
     rate = math.radians(p["yaw_rate_deg_s"]) * max(0.0, 1.0 + p["rate_spread"] * float(ping.standard_normal()))
     rate *= 1.0 if ping.random() < 0.5 else -1.0
-    step = (frame.azimuths_rad[-1] - frame.azimuths_rad[0]) / max(x.shape[1] - 1, 1)
-    power = (x * x).astype(np.float32)
-    shift = rate * 2 * frame.ranges_m / SOUND_SPEED_MPS / step  # beams, per row
-    cols = np.arange(x.shape[1], dtype=np.float32)[None, :] - shift[:, None].astype(np.float32)
-    rows = np.repeat(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape[1], axis=1)
-    power = cv2.remap(power, cols.astype(np.float32), rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    power, step = _yaw_sheared_power(x, frame, rate)
+    amplitude = np.sqrt(np.maximum(power, 0.0)).astype(np.float32)
     half_width = abs(rate) * p["integration_s"] / 2 / step  # beams
-    if half_width > 0.5:
-        taps = np.arange(-math.ceil(half_width), math.ceil(half_width) + 1, dtype=np.float64)
-        triangle = np.maximum(1.0 - np.abs(taps) / half_width, 0.0)
-        power = _convolve_power(np.sqrt(power), triangle, axis=1) ** 2
-    return np.sqrt(np.maximum(power, 0.0)).astype(np.float32)
+    if half_width <= 0.5:
+        return amplitude
+    taps = np.arange(-math.ceil(half_width), math.ceil(half_width) + 1, dtype=np.float64)
+    return _convolve_power(amplitude, np.maximum(1.0 - np.abs(taps) / half_width, 0.0), axis=1)
