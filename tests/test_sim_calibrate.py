@@ -14,6 +14,8 @@ import pytest
 from sonar_realism.cli import main as cli_main
 from sonar_realism.errors import ConfigError
 from sonar_realism.io import read_frames
+from sonar_realism.sim import measure
+from sonar_realism.sim.annotations import mask_objects
 from sonar_realism.sim.calibrate import (
     MIN_FRAMES,
     CalibrateConfig,
@@ -21,6 +23,7 @@ from sonar_realism.sim.calibrate import (
     effect_in,
     match_near_field,
     match_onsets,
+    match_shadow_floor,
     near_field_profile,
     sim_images,
 )
@@ -48,14 +51,14 @@ def exact(value: float) -> Estimate:
     return Estimate(value, value, value)
 
 
-def truth(present: float = 0.0) -> Calibration:
+def truth(present: float = 0.0, shadow_floor: float = 0.0) -> Calibration:
     """A small sensor with known mounting, as a calibration would describe it."""
     mode = GridMode(n_beams=64, n_ranges=160, min_range_m=0.0, max_range_m=8.0, fov_deg=90.0, weight=1.0)
     return Calibration(
         version=CALIBRATION_VERSION, source="truth", frames=1, grid=Grid((mode,), "recording", "recording"),
         mounting=Mounting(exact(HEIGHT_M), exact(TILT_DEG), exact(0.05), exact(0.5), 20.0),
         seabed=SeabedTerms(exact(0.5), exact(0.5), exact(8.0), exact(0.1), exact(0.01)),
-        targets=TargetTerms(exact(present), exact(0.8), exact(0.5), exact(2.0), 1.0),
+        targets=TargetTerms(exact(present), exact(0.8), exact(0.5), exact(2.0), 1.0, shadow_floor=shadow_floor),
         effects={name: EFFECTS[name]().params() for name in PIPELINE_ORDER}, fitted=(),
         range_gain_db=(0.0, 0.0), bearing_gain_db=(0.0, 0.0), distances={}, export_rescaled=True)
 
@@ -353,3 +356,57 @@ def test_refit_calibration_texture_adds_a_generator_on_the_calibrations_own_leve
     save_calibration(truth(), tmp_path / "plain.json")
     with pytest.raises(SystemExit, match="no fitted texture"):
         script.main(["--calibration", str(tmp_path / "plain.json"), "--real", str(folder), "--out", str(out)])
+
+
+def yolo_boxes(mask: np.ndarray) -> str:
+    """The mask's objects as YOLO lines (class x_centre y_centre width height over the polar image)."""
+    lines = []
+    for target in mask_objects(mask):
+        rows, cols = target.rows, target.cols
+        y0, y1, x0, x1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+        lines.append(f"0 {(x0 + x1) / 2 / mask.shape[1]:.6f} {(y0 + y1) / 2 / mask.shape[0]:.6f} "
+                     f"{(x1 - x0) / mask.shape[1]:.6f} {(y1 - y0) / mask.shape[0]:.6f}")
+    return "\n".join(lines)
+
+
+def test_grey_shadows_are_measured_and_matched_and_black_ones_stay_black() -> None:
+    """A recording whose targets leave 0.3 of the seabed's power in their shadows: the shadow floor matched to its
+    measured shadow level lands near 0.3; a recording of black shadows (level unmeasured) keeps a floor of 0."""
+    grey = truth(present=1.0, shadow_floor=0.3)
+    chain = grey.effect_chain()
+    levels = []
+    for frame, mask in simulate_calibrated(grey, 12, seed=5):
+        image = frame.intensity.astype(np.float32) / max(float(frame.intensity.max()), 1e-6)
+        for target in mask_objects(mask):
+            levels.append(measure.shadow_level(image, slice(int(target.rows.min()), int(target.rows.max()) + 1),
+                                               slice(int(target.cols.min()), int(target.cols.max()) + 1)))
+    level = float(np.nanmedian(levels))
+    assert 0.3 < level < 0.9  # grey, not black
+    unmatched = dataclasses.replace(grey, targets=dataclasses.replace(grey.targets, shadow_level=exact(level),
+                                                                       shadow_floor=0.0))
+    matched = match_shadow_floor(unmatched, chain, 12, seed=9)
+    assert matched.targets.shadow_floor == pytest.approx(0.3, abs=0.12)
+    black = dataclasses.replace(unmatched, targets=dataclasses.replace(unmatched.targets, shadow_level=exact(0.0)))
+    assert match_shadow_floor(black, chain, 12, seed=9).targets.shadow_floor == 0.0
+
+
+def test_refit_calibration_targets_measures_annotated_targets_and_keeps_the_rest(tmp_path: Path) -> None:
+    script = load_repo_script("scripts/refit_calibration_targets.py", "refit_calibration_targets")
+    recorded = truth(present=1.0, shadow_floor=0.3)
+    images, labels = tmp_path / "images", tmp_path / "labels"
+    images.mkdir()
+    labels.mkdir()
+    for i, (frame, mask) in enumerate(simulate_calibrated(recorded, MIN_FRAMES, seed=4)):
+        cv2.imwrite(str(images / f"rec_{i:03d}.png"), frame.intensity)
+        (labels / f"rec_{i:03d}.txt").write_text(yolo_boxes(mask), encoding="utf-8")
+    save_calibration(truth(), tmp_path / "before.json")
+    out = tmp_path / "after.json"
+    assert script.main(["--calibration", str(tmp_path / "before.json"), "--real", str(images),
+                        "--targets-from", str(labels), "--out", str(out)]) == 0
+    before, after = truth(), load_calibration(out)
+    assert (after.grid, after.mounting, after.seabed, after.effects) == (before.grid, before.mounting, before.seabed,
+                                                                         before.effects)
+    t = after.targets
+    assert t.source.startswith("annotations") and t.present_fraction.value == 1.0
+    assert 0.3 <= t.size_m.value <= 1.2  # 0.8 m targets: a box round the lit surface alone reads narrower
+    assert 0.3 < t.shadow_level.value < 0.9 and 0.1 <= t.shadow_floor <= 0.5

@@ -34,3 +34,18 @@ def test_a_dark_patch_without_a_return_and_a_late_onset_are_not_targets() -> Non
     late = seabed_frame(2)
     late[100:160, 40:80] = 0.01  # the seabed begins 60 rows later in these beams
     assert measure.target_shadow(late) is None
+
+
+def test_a_shadows_level_is_its_darkest_band_against_the_seabed_beside_it() -> None:
+    """A grey shadow (0.35 of the seabed) reads about 0.35 whether the box frames the return alone or the return and
+    its shadow; a frame without one reads about 1; a target with no seabed beside it cannot be measured."""
+    image = seabed_frame()
+    image[180:188, 50:80] = 1.0
+    image[188:, 52:78] *= 0.35
+    echo = measure.shadow_level(image, slice(180, 188), slice(50, 80))
+    echo_and_shadow = measure.shadow_level(image, slice(180, 400), slice(50, 80))
+    assert echo == pytest.approx(0.35, abs=0.08)
+    assert echo_and_shadow == pytest.approx(0.35, abs=0.08)
+    assert measure.shadow_level(seabed_frame(1), slice(180, 188), slice(50, 80)) == pytest.approx(1.0, abs=0.2)
+    assert np.isnan(measure.shadow_level(image, slice(180, 188), slice(4, 124)))
+    assert np.isnan(measure.shadow_level(image, slice(380, 400), slice(50, 80)))  # no rows behind it

@@ -153,7 +153,7 @@ def test_ellipsoids_intersected_together_give_intersects_hits() -> None:
     assert (hit_object == 4).any() and not (hit_object == 5).any()
 
 
-def test_shadow_box_clears_the_pixels_the_whole_grid_test_clears() -> None:
+def test_shadow_box_scales_the_pixels_the_whole_grid_test_shadows() -> None:
     rng = np.random.default_rng(0)
     sensor = SENSOR
     half = math.radians(sensor.vertical_fov_deg) / 2
@@ -163,14 +163,15 @@ def test_shadow_box_clears_the_pixels_the_whole_grid_test_clears() -> None:
     hit_t = np.full((sensor.elevation_rays, sensor.n_beams), np.inf)
     hit_t[10:30, 20:31] = rng.uniform(4.0, 9.0, (20, 11))
     hit_t[5, 60] = 7.5
-    before = rng.uniform(size=sin_p.shape) > 0.1
-    boxed, whole = before.copy(), before.copy()
-    render_module._shade(boxed, sin_p, r, hit_t, ranges, half, sensor)
+    before = rng.uniform(0.5, 1.0, sin_p.shape).astype(np.float32)
     phi = np.arcsin(np.clip(sin_p, -1.0, 1.0))
     index = np.clip(((phi + half) / (2 * half / sensor.elevation_rays)).astype(np.int32), 0, sensor.elevation_rays - 1)
-    whole &= hit_t.astype(np.float32)[index, np.arange(sensor.n_beams)[None, :]] >= r - np.float32(sensor.range_bin_m)
-    np.testing.assert_array_equal(boxed, whole)
-    assert (before & ~boxed).sum() > 100  # the objects did cast shadows
+    shadowed = hit_t.astype(np.float32)[index, np.arange(sensor.n_beams)[None, :]] < r - np.float32(sensor.range_bin_m)
+    assert shadowed.sum() > 100  # the objects do cast shadows
+    for floor in (0.0, 0.25):
+        boxed = before.copy()
+        render_module._shade(boxed, floor, sin_p, r, hit_t, ranges, half, sensor)
+        np.testing.assert_array_equal(boxed, np.where(shadowed, before * np.float32(floor), before))
 
 
 def test_a_ridge_on_the_seabed_casts_a_shadow_behind_it_and_a_flat_seabed_none() -> None:

@@ -52,7 +52,7 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.models.speckle_fit import EXPORT_KNEE_LOW, top_ratio
 from sonar_realism.sim import measure
-from sonar_realism.sim.annotations import Annotations, measure_objects, parse_classes, read_annotations
+from sonar_realism.sim.annotations import Annotations, mask_objects, measure_objects, parse_classes, read_annotations
 from sonar_realism.sim.calibrated import (
     SeabedLook,
     calibrated_view,
@@ -117,6 +117,8 @@ NEAR_FIELD_SECANT_STEPS = 2
 NEAR_FIELD_FRAMES = 12  # views the band is matched on (a mean over beams and frames: few suffice)
 # seabed roughness (m) tried by the relief match, largest first: the renderer's default down to a flat seabed
 RELIEF_LADDER = (0.01, 0.007, 0.005, 0.0035, 0.0025, 0.0015, 0.001, 0.0)
+SHADOW_FLOOR_STEPS = 6  # bisection steps of the shadow floor: 1/64 of the seabed's power
+SHADOW_FLOOR_FRAMES = 24  # simulated frames with a target per step
 
 # (effect, parameter, log-scale search) fitted by the calibration (declared by each effect class).
 FITTED: tuple[tuple[str, str, bool], ...] = calibrated_parameters()
@@ -610,11 +612,13 @@ def _gain_update(real: Fingerprint, sim: Fingerprint, gamma: float, knots: int, 
 @dataclass(frozen=True)
 class ShadowTarget:
     """A target as `measure.target_shadow` finds it: its shadow's width across (m, at the shadow's start), where
-    the shadow starts (over the window's maximum range) and the return just ahead of it over the seabed median."""
+    the shadow starts (over the window's maximum range), the return just ahead of it over the seabed median, and
+    the shadow's level over the seabed beside it (`measure.shadow_level`)."""
 
     width_m: float
     range_fraction: float
     highlight: float
+    shadow: float
 
 
 def shadow_target(frame: SonarImage, image: np.ndarray) -> ShadowTarget | None:
@@ -626,7 +630,8 @@ def shadow_target(frame: SonarImage, image: np.ndarray) -> ShadowTarget | None:
     start_m = float(frame.ranges_m[min(shadow.start_row, frame.n_ranges - 1)])
     columns = slice(shadow.first_beam, shadow.first_beam + shadow.width_beams)
     return ShadowTarget(shadow.width_beams * beam_step * start_m, start_m / float(frame.ranges_m[-1]),
-                        measure.highlight_ratio(image, columns, shadow.start_row))
+                        measure.highlight_ratio(image, columns, shadow.start_row),
+                        measure.shadow_level(image, slice(shadow.start_row, shadow.start_row + 1), columns))
 
 
 def target_terms_from_shadows(frames: Sequence[SonarImage], images: Sequence[np.ndarray], rng: np.random.Generator,
@@ -644,7 +649,55 @@ def target_terms_from_shadows(frames: Sequence[SonarImage], images: Sequence[np.
 
     return TargetTerms(_estimate(present, np.mean, rng, resamples),
                        median_of([t.width_m for t in seen], 0.5), median_of([t.range_fraction for t in seen], 0.5),
-                       median_of([t.highlight for t in seen], 2.0), 1.0)
+                       median_of([t.highlight for t in seen], 2.0), 1.0,
+                       shadow_level=_shadow_estimate([t.shadow for t in seen], rng, resamples))
+
+
+def _shadow_estimate(levels: Sequence[float], rng: np.random.Generator, resamples: int) -> Estimate:
+    """The median measured shadow level (0, black shadows, where no target left one to measure)."""
+    finite = np.array([v for v in levels if math.isfinite(v)])
+    return _estimate(np.clip(finite, 0.0, 2.0), np.median, rng, resamples) if finite.size else _fixed(0.0)
+
+
+def _sim_shadow_level(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
+    """Median `measure.shadow_level` behind the simulated targets (their masks' boxes) of up to `n` frames."""
+    levels: list[float] = []
+    index = 0
+    while len(levels) < n and index < 8 * n:
+        clean, mask = calibrated_view(calibration, seed, index)
+        index += 1
+        if not mask.any():
+            continue
+        image = per_frame_rescaled(finish(calibration, clean, chain, np.random.default_rng([seed, index])).intensity)
+        for target in mask_objects(mask):
+            levels.append(measure.shadow_level(image, slice(int(target.rows.min()), int(target.rows.max()) + 1),
+                                               slice(int(target.cols.min()), int(target.cols.max()) + 1)))
+    finite = [v for v in levels if math.isfinite(v)]
+    return float(np.median(finite)) if finite else math.nan
+
+
+def match_shadow_floor(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> Calibration:
+    """The share of seabed power left in targets' shadows (`targets.shadow_floor`) whose simulated shadows
+    measure the recording's `targets.shadow_level`, by bisection (the level rises with the floor). A recording
+    whose shadows were not measured keeps black ones.
+
+    The Oculus fit recording's shadows sit at 0.43 of the seabed beside them where the catalogue's effects leave a
+    black shadow at 0.22-0.27: the two-sample classifiers tell a black shadow at a glance (docs/RESULTS.md)."""
+    t = calibration.targets
+    if t.present_fraction.value <= 0 or t.shadow_level.value <= 0:
+        return calibration
+
+    def with_floor(floor: float) -> Calibration:
+        return dataclasses.replace(calibration, targets=dataclasses.replace(t, shadow_floor=round(floor, 4)))
+
+    low, high = 0.0, 1.0
+    for _ in range(SHADOW_FLOOR_STEPS):
+        middle = (low + high) / 2
+        level = _sim_shadow_level(with_floor(middle), chain, n, seed)
+        if not math.isfinite(level):
+            return calibration
+        low, high = (middle, high) if level < t.shadow_level.value else (low, middle)
+    return with_floor((low + high) / 2)
 
 
 def _sim_shadow_targets(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int,
@@ -686,6 +739,19 @@ def match_shadow_targets(calibration: Calibration, chain: Sequence[Effect], n: i
     return _with_highlight_matched(calibration, float(np.median(found)) if found else math.nan)
 
 
+def match_targets(calibration: Calibration, chain: Sequence[Effect], annotated: bool, config: CalibrateConfig,
+                  seed: int) -> Calibration:
+    """The measured targets made simulation terms under `chain`: their shadows' floor, then (counted by their
+    shadows) the share of frames the detector finds them in and their return, or (from annotations) their
+    return alone."""
+    calibration = match_shadow_floor(calibration, chain, SHADOW_FLOOR_FRAMES, seed)
+    if not annotated:
+        return match_shadow_targets(calibration, chain, config.mounting_frames, seed)
+    for _ in range(2):
+        calibration = _with_highlight_matched(calibration, _sim_highlight(calibration, chain, config.sim_frames, seed))
+    return calibration
+
+
 def _with_highlight_matched(calibration: Calibration, simulated: float) -> Calibration:
     """The targets' return gain moved so that their `simulated` return (over the seabed median, as measured on
     the recording) becomes the recording's `targets.highlight`, through the export's gamma (kept in 1..30)."""
@@ -711,13 +777,17 @@ def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence
     if not sizes:
         raise ConfigError(f"calibrate: {annotations.source} mark no object in any frame (of the classes asked for); "
                           "leave out --targets-from to count targets by their shadows")
+    shadows = [measure.shadow_level(image, slice(int(o.rows.min()), int(o.rows.max()) + 1),
+                                    slice(int(o.cols.min()), int(o.cols.max()) + 1))
+               for image, objects in zip(images, annotations.objects, strict=True) for o in objects]
     return TargetTerms(_estimate((per_frame > 0).astype(float), np.mean, rng, resamples),
                        _estimate(np.clip(sizes, 0.02, 20.0), np.median, rng, resamples),
                        _estimate(np.array(where), np.median, rng, resamples),
                        _estimate(np.array(highlights), np.median, rng, resamples), 1.0,
                        count=_estimate(np.clip(per_frame[per_frame > 0], 1, MAX_TARGETS), np.mean, rng, resamples),
                        source=f"{annotations.source}: {annotations.total} objects in "
-                              f"{annotations.frames_with_objects} of {len(frames)} frames")
+                              f"{annotations.frames_with_objects} of {len(frames)} frames",
+                       shadow_level=_shadow_estimate(shadows, rng, resamples))
 
 
 # ----------------------------------------------------------------------------------------------- the whole fit
@@ -844,11 +914,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     # the targets on the settled mounting: the detector's shadows depend on where the seabed begins (matched on
     # the first mounting, 0.92 m against the final 0.78 m, the Oculus targets came out 5.75 m wide in every
     # frame, against 1.5 m measured; docs/RESULTS.md)
-    if annotations is None:
-        calibration = match_shadow_targets(calibration, chain, config.mounting_frames, seed)
-    else:
-        for _ in range(2):
-            calibration = _with_highlight_matched(calibration, _sim_highlight(calibration, chain, n, seed))
+    calibration = match_targets(calibration, chain, annotations is not None, config, seed)
     say(f"targets: {calibration.targets}")
     if calibration.texture is not None:
         # the top of the range under the final gain and highlights: they set how often the level nears full scale

@@ -32,6 +32,9 @@ TARGET_KINDS = ("sphere", "cube", "barrel")
 # Spread of one target's size around the calibrated size (log-normal sigma) and of its range (fraction).
 SIZE_SPREAD = 0.25
 RANGE_SPREAD = 0.15
+# A target is at most this share of the range window across: the Oculus fit recording's labelled object spans
+# 0.4-0.7 of its fan, about 0.55 of the window (0.3 clipped it to half its labelled size).
+SIZE_CAP = 0.75
 # Targets sit within this share of the half fan around boresight (the recordings keep them in view).
 BEARING_SHARE = 0.55
 # Dark patches (mud, weed, holes) keep this share of the surrounding backscatter.
@@ -134,7 +137,7 @@ def target_count(mean: float, rng: np.random.Generator) -> int:
 def _place_target(maker: _ObjectMaker, rng: np.random.Generator, calibration: Calibration, pose: Pose,
                   mode: GridMode) -> None:
     t = calibration.targets
-    size = float(np.clip(t.size_m.value * math.exp(rng.normal(0.0, SIZE_SPREAD)), 0.05, 0.3 * mode.max_range_m))
+    size = float(np.clip(t.size_m.value * math.exp(rng.normal(0.0, SIZE_SPREAD)), 0.05, SIZE_CAP * mode.max_range_m))
     slant = mode.max_range_m * t.range_fraction.value * (1 + rng.uniform(-RANGE_SPREAD, RANGE_SPREAD))
     slant = float(np.clip(slant, pose.z * 1.05 + size, 0.9 * mode.max_range_m))
     ground = math.sqrt(max(slant ** 2 - pose.z ** 2, 0.01))
@@ -166,7 +169,8 @@ def calibrated_view(calibration: Calibration, seed: int, index: int, look: Seabe
         for _ in range(target_count(calibration.targets.count.value, rng)):
             _place_target(maker, rng, calibration, pose, mode)
     scene = Scene("calibrated", int(rng.integers(2 ** 31)), seabed, tuple(maker.primitives), tuple(maker.objects),
-                  trajectory=lambda n: [pose] * n, trajectory_kind="calibrated")
+                  trajectory=lambda n: [pose] * n, trajectory_kind="calibrated",
+                  shadow_floor=calibration.targets.shadow_floor)
     # unclipped: the recording's bright returns (patches, rims) keep their range until the output mapping
     frame, mask = frame_for(scene, pose, sensor_for(mode, m.vertical_fov_deg), index, clip=False)
     # The recording is rescaled per frame, so its absolute level is unknown: put the seabed at the level the

@@ -129,6 +129,10 @@ class TargetTerms:
     highlight_gain: float  # amplitude gain on target returns that reproduces `highlight` in simulation
     count: Estimate = Estimate(1.0, 1.0, 1.0)  # targets in a frame that shows any (mean)
     source: str = "shadows"
+    # the seabed's level in a target's shadow over its level beside the shadow, in output units (0: not measured,
+    # black shadows), and the share of the seabed's power the renderer leaves there to reproduce it
+    shadow_level: Estimate = Estimate(0.0, 0.0, 0.0)
+    shadow_floor: float = 0.0
 
     def validate(self) -> None:
         if not 0.0 <= self.present_fraction.value <= 1.0:
@@ -137,6 +141,10 @@ class TargetTerms:
             raise ConfigError(f"targets.size_m: {self.size_m.value} outside 0.02..20 m")
         if not 1.0 <= self.count.value <= MAX_TARGETS:
             raise ConfigError(f"targets.count: {self.count.value} outside 1..{MAX_TARGETS}")
+        if not 0.0 <= self.shadow_level.value <= 2.0:
+            raise ConfigError(f"targets.shadow_level: {self.shadow_level.value} outside 0..2")
+        if not 0.0 <= self.shadow_floor <= 1.0:
+            raise ConfigError(f"targets.shadow_floor: {self.shadow_floor} outside 0..1")
 
 
 @dataclass(frozen=True)

@@ -229,6 +229,34 @@ def highlight_ratio(image: np.ndarray, columns: slice, shadow_row: int) -> float
     return float(np.percentile(ahead, 95)) / max(seabed, 1e-6) if ahead.size else math.nan
 
 
+def shadow_level(image: np.ndarray, rows: slice, columns: slice) -> float:
+    """How dark a target's shadow is: the darkest band of rows behind the target's middle row, over the middle
+    half of its columns, against the seabed beside it at the same rows (medians of the frame scaled to its
+    maximum); NaN where the target leaves too few rows behind it or too few columns beside it.
+
+    The darkest band, not a fixed place behind the target, so that a box framing the echo alone and a box framing
+    the echo and its shadow measure the same shadow, and a hollow return's dark inside counts as it looks."""
+    first, last = rows.start or 0, rows.stop or image.shape[0]
+    start, stop = columns.start or 0, columns.stop or image.shape[1]
+    width = stop - start
+    begin = (first + last) // 2
+    band = max(8, (image.shape[0] - begin) // 8)
+    if width < 4 or image.shape[0] - begin < 2 * band:
+        return math.nan
+    pad = max(4, width // 8)
+    beside = np.ones(image.shape[1], bool)
+    beside[max(0, start - pad):stop + pad] = False
+    if beside.sum() < 16:
+        return math.nan
+    inner = image[:, start + width // 4:stop - width // 4]
+    levels = []
+    for top in range(begin, image.shape[0] - band + 1, band // 2):
+        seabed = float(np.median(image[top:top + band, beside]))
+        if seabed > 1e-4:
+            levels.append(float(np.median(inner[top:top + band])) / seabed)
+    return min(levels) if levels else math.nan
+
+
 def near_zero_fraction(image: np.ndarray, threshold: float = NEAR_ZERO) -> float:
     """Share of pixels at or below 2 counts of the frame max (black water)."""
     return float((image <= threshold).mean())

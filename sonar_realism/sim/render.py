@@ -200,15 +200,16 @@ def _seabed_band(scene: Scene, origin: np.ndarray, axes: np.ndarray, azimuths: n
     fill = np.minimum(fill * np.float32(1.0 / _reference_fill()), np.float32(_MAX_SEABED_FILL))
     power = backscatter * albedo * fill
 
-    _shade(visible, sin_p, r, hit_t, ranges, half_aperture, sensor)
     _self_shadow(visible, dir_z, q)
     power *= visible
+    _shade(power, scene.shadow_floor, sin_p, r, hit_t, ranges, half_aperture, sensor)
     return power
 
 
-def _shade(visible: np.ndarray, sin_p: np.ndarray, r: np.ndarray, hit_t: np.ndarray, ranges: np.ndarray,
+def _shade(power: np.ndarray, floor: float, sin_p: np.ndarray, r: np.ndarray, hit_t: np.ndarray, ranges: np.ndarray,
            half_aperture: float, sensor: SensorConfig) -> None:
-    """Clear `visible` where the object ray at the pixel's (beam, elevation) stopped nearer (acoustic shadow).
+    """Scale `power` by `floor` where the object ray at the pixel's (beam, elevation) stopped nearer (acoustic
+    shadow).
 
     Only pixels beyond the nearest hit (one bin of slack), on the beams some ray hit, can be in one: the test
     runs on that box alone.
@@ -224,7 +225,8 @@ def _shade(visible: np.ndarray, sin_p: np.ndarray, r: np.ndarray, hit_t: np.ndar
     step = 2 * half_aperture / sensor.elevation_rays
     elevation_index = np.clip(((phi + half_aperture) / step).astype(np.int32), 0, sensor.elevation_rays - 1)
     blocker = hit_t.astype(np.float32)[elevation_index, np.arange(first_beam, last_beam)[None, :]]
-    visible[box] &= blocker >= r[first_row:] - np.float32(sensor.range_bin_m)
+    shadowed = blocker < r[first_row:] - np.float32(sensor.range_bin_m)
+    power[box] *= np.where(shadowed, np.float32(floor), np.float32(1.0))
 
 
 def _self_shadow(visible: np.ndarray, sin_elevation: np.ndarray, q: np.ndarray) -> None:

@@ -159,6 +159,9 @@ class Scene:
     objects: tuple[SceneObject, ...]
     trajectory: Callable[[int], list[Pose]]
     trajectory_kind: str
+    # Share of the seabed's power left in an object's acoustic shadow: what a recording shows there (sound around
+    # or through the object, the elevation beam's lower edge), 0 for a solid occluder in clean physics.
+    shadow_floor: float = 0.0
 
 
 # ----------------------------------------------------------------------------------------------- geometry
