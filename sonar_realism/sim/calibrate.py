@@ -718,7 +718,9 @@ def match_shadow_targets(calibration: Calibration, chain: Sequence[Effect], n: i
     The size stays the measured shadow width: a target's shadow begins about as wide as the target. A search
     for the size whose simulated shadows measure as wide walked off with the detector's noise (a few detections
     a size; shadows merged with dark seabed beside them), from 1.5 m measured on the Oculus fit recording to
-    5.75 m (its labels: about 1.3 m), and from 0.77 m on a synthetic recording of 0.8 m targets to 0.34 m."""
+    5.75 m, and from 0.77 m on a synthetic recording of 0.8 m targets to 0.34 m. (The 1.5 m is itself short: the
+    fit recording's labels frame an object 6.7 m across at 2 cm bins, whose grey shadow the detector finds only in
+    part; `calibrate --targets-from` reads the labels. docs/RESULTS.md, 2026-11-28 19:07.)"""
     t = calibration.targets
     if t.present_fraction.value <= 0:
         return calibration  # nothing found: no targets

@@ -121,6 +121,8 @@ def write_report(result: CalibrationResult, path: str | Path) -> Path:
         _row("targets in such a frame", t.count.value, t.count.low, t.count.high),
         _row("target size", t.size_m.value, t.size_m.low, t.size_m.high, " m"),
         _row("target range / max range", t.range_fraction.value, t.range_fraction.low, t.range_fraction.high),
+        _row(f"target shadow / seabed beside it (floor {t.shadow_floor:.3g})", t.shadow_level.value,
+             t.shadow_level.low, t.shadow_level.high),
     ]
     rows += [_row(f"{p.effect}.{p.name}", p.estimate.value, p.estimate.low, p.estimate.high) for p in c.fitted]
     grids = "".join(f"<tr><td>{g.n_beams}</td><td>{g.n_ranges}</td><td>{g.min_range_m:.3g}..{g.max_range_m:.3g} m"
