@@ -92,6 +92,17 @@ def test_calibrate_recovers_grid_and_mounting_of_a_known_recording(calibrated) -
     assert c.distances["calibrated sim"] <= 0.6 * c.distances["uncalibrated sim"]
 
 
+def test_the_calibrated_frames_seabed_is_as_patchy_as_the_recordings(calibrated) -> None:
+    """Matched on the frames as they finally come out (the seabed's last match runs after every other step). On
+    this small recording the steps after the first match move the patchiness by less than the tolerance; on the
+    Oculus fit recording they moved it by a third (0.39 matched, 0.51 on the final frames; docs/RESULTS.md)."""
+    stats = [measure.seabed_stats(image) for image in sim_images(calibrated.calibration,
+                                                                 calibrated.calibration.effect_chain(), 12, seed=21)]
+    recorded = [measure.seabed_stats(image) for image in calibrated.real_images]
+    simulated = float(np.median([s.contrast for s in stats if s is not None]))
+    assert simulated == pytest.approx(float(np.median([s.contrast for s in recorded if s is not None])), rel=0.15)
+
+
 def test_targets_found_by_their_shadows_are_matched_by_simulation(calibrated) -> None:
     """The shadow detector misses targets and takes some seabed for one: the calibration sets the share of frames
     with a target so that the detector finds them as often in simulation as in the recording; their size is the
