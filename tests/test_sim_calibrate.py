@@ -319,7 +319,7 @@ def test_relief_match_keeps_no_more_roughness_than_the_recordings_dark_seabed_al
 
     recording = [per_frame_rescaled(f.intensity)
                  for f, _ in simulate_calibrated(low_mounted(roughness, dark_patches), 8, seed=5)]
-    real = _seabed_summary(_seabed_table(recording))
+    real = _seabed_summary(_seabed_table(recording, [None] * len(recording)))  # no targets
     calibration = low_mounted(0.01)
     look = SeabedLook.of(calibration.seabed)
     matched = _match_relief(calibration, calibration.effect_chain(), look, real, 8, 0)

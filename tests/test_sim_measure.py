@@ -49,3 +49,21 @@ def test_a_shadows_level_is_its_darkest_band_against_the_seabed_beside_it() -> N
     assert measure.shadow_level(seabed_frame(1), slice(180, 188), slice(50, 80)) == pytest.approx(1.0, abs=0.2)
     assert np.isnan(measure.shadow_level(image, slice(180, 188), slice(4, 124)))
     assert np.isnan(measure.shadow_level(image, slice(380, 400), slice(50, 80)))  # no rows behind it
+
+
+def test_seabed_patchiness_leaves_out_the_beams_of_a_target_and_its_shadow() -> None:
+    """A target across a third of the fan, its return bright and its shadow grey, makes the seabed read patchier
+    and longer-grained; its beams left out, the seabed reads as it does without it."""
+    plain = seabed_frame(2)
+    with_target = plain.copy()
+    with_target[180:200, 40:84] = 1.0
+    with_target[200:, 40:84] *= 0.3
+    alone = measure.seabed_stats(plain)
+    spoiled = measure.seabed_stats(with_target)
+    cleaned = measure.seabed_stats(with_target, measure.target_beams(128, [(40, 83)]))
+    assert alone is not None and spoiled is not None and cleaned is not None
+    assert spoiled.contrast > 1.5 * alone.contrast
+    assert cleaned.contrast == pytest.approx(alone.contrast, rel=0.15)
+    assert cleaned.scale_rows <= alone.scale_rows + 2
+    assert measure.target_beams(128, [(40, 83)]).sum() == 44 + 2 * (measure.LOCAL_BOX // 2 + 1 + 43 // 16)
+    assert measure.seabed_stats(with_target, np.ones(128, bool)) is None  # nothing left to measure

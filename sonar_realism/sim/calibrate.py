@@ -285,10 +285,36 @@ def match_onsets(calibration: Calibration, real: np.ndarray, sim: np.ndarray, sp
     return dataclasses.replace(calibration, mounting=mounting)
 
 
-def _seabed_table(images: Sequence[np.ndarray]) -> np.ndarray:
-    """Each frame's patchiness statistics (`SeabedStats` fields as columns; frames without a seabed left out)."""
-    rows = [dataclasses.astuple(s) for s in (measure.seabed_stats(i) for i in images) if s is not None]
+def _seabed_table(images: Sequence[np.ndarray], targets: Sequence[np.ndarray | None]) -> np.ndarray:
+    """Each frame's patchiness statistics (`SeabedStats` fields as columns; frames without a seabed left out),
+    the beams `targets` marks in each frame (`measure.target_beams`) left out."""
+    rows = [dataclasses.astuple(s) for s in (measure.seabed_stats(i, t) for i, t in zip(images, targets, strict=True))
+            if s is not None]
     return np.array(rows, dtype=np.float64).reshape(len(rows), len(dataclasses.fields(SeabedStats)))
+
+
+def _sim_seabed_table(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int, gain: bool,
+                      look: SeabedLook) -> np.ndarray:
+    """`_seabed_table` of the first n calibrated frames of `seed` drawn with `look`, their targets' beams (from
+    the masks) left out as the recording's are."""
+    images, targets = [], []
+    for index in range(n):
+        clean, mask = calibrated_view(calibration, seed, index, look)
+        images.append(per_frame_rescaled(finish(calibration, clean, chain, np.random.default_rng([seed, index]),
+                                                gain=gain).intensity))
+        targets.append(measure.target_beams(mask.shape[1], [(int(o.cols.min()), int(o.cols.max()))
+                                                             for o in mask_objects(mask)]))
+    return _seabed_table(images, targets)
+
+
+def _recording_target_beams(images: Sequence[np.ndarray], annotations: Annotations | None) -> list[np.ndarray]:
+    """The beams of each recorded frame's targets: its annotated objects, or the shadow the detector finds."""
+    if annotations is not None:
+        spans = [[(int(o.cols.min()), int(o.cols.max())) for o in objects] for objects in annotations.objects]
+    else:
+        found = [measure.target_shadow(image) for image in images]
+        spans = [[] if t is None else [(t.first_beam, t.first_beam + t.width_beams - 1)] for t in found]
+    return [measure.target_beams(image.shape[1], s) for image, s in zip(images, spans, strict=True)]
 
 
 def _seabed_summary(table: np.ndarray) -> SeabedStats:
@@ -314,7 +340,7 @@ def _match_seabed(calibration: Calibration, chain: Sequence[Effect], look: Seabe
     width_bounds = ((max(0.2, measured_deg / 2), min(60.0, measured_deg * 2)) if resolved_width(real)
                     else (look.patch_width_deg, look.patch_width_deg))
     for _ in range(3):
-        sim = _seabed_summary(_seabed_table(sim_images(calibration, chain, n, seed, gain=gain, look=look)))
+        sim = _seabed_summary(_sim_seabed_table(calibration, chain, n, seed, gain, look))
         if not math.isfinite(sim.contrast):
             break
         look = SeabedLook(float(np.clip(look.patch_contrast * real.contrast / max(sim.contrast, 1e-3), 0.0, 2.5)),
@@ -341,7 +367,7 @@ def _match_relief(calibration: Calibration, chain: Sequence[Effect], look: Seabe
         return look
     for roughness in RELIEF_LADDER:
         trial = dataclasses.replace(look, roughness_m=roughness, dark_fraction=0.0)
-        sim = _seabed_summary(_seabed_table(sim_images(calibration, chain, n, seed, gain=False, look=trial)))
+        sim = _seabed_summary(_sim_seabed_table(calibration, chain, n, seed, False, trial))
         if not math.isfinite(sim.dark_fraction):
             return look
         if sim.dark_fraction <= real.dark_fraction:
@@ -832,7 +858,7 @@ def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig
     real_onsets = _frame_onsets(images, [_bin(f) for f in frames])
 
     # seabed patchiness and targets, measured on the recording
-    real_table = _seabed_table(images)
+    real_table = _seabed_table(images, _recording_target_beams(images, annotations))
     real_seabed = _seabed_summary(real_table)
     if math.isfinite(real_seabed.width_beams) and not resolved_width(real_seabed):
         notes.append(f"seabed patches {real_seabed.width_beams:.0f} beams wide, near the measure's "

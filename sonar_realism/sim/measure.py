@@ -14,6 +14,7 @@ All images are float [n_ranges, n_beams] scaled so the frame maximum is 1 (the r
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -131,30 +132,49 @@ class SeabedStats:
     dark_fraction: float  # share of local means below half their median
 
 
-def seabed_stats(image: np.ndarray) -> SeabedStats | None:
+def seabed_stats(image: np.ndarray, targets: np.ndarray | None = None) -> SeabedStats | None:
+    """The seabed's patchiness below the onset; `targets` (bool per beam) marks the beams of targets and their
+    shadows, left out: a seabed statistic, not a target's (a target spanning half the fan doubled the contrast)."""
     start = seabed_rows(image)
     region = image[start:]
     if region.shape[0] < 4 * LOCAL_BOX:
         return None
     local = cv2.blur(region.astype(np.float32), (LOCAL_BOX, LOCAL_BOX))[LOCAL_BOX:-LOCAL_BOX, 2:-2]
-    median = float(np.median(local))
+    if targets is not None and targets.any():
+        keep = ~np.asarray(targets, bool)[2:-2]
+        if keep.sum() < 4 * LOCAL_BOX:
+            return None
+        local = np.where(keep[None, :], local, np.float32(np.nan))
+    median = float(np.nanmedian(local))
     if median <= 1e-4:
         return None
     # log level about each row's median: the range trend (TVG, beam pattern) is not patchiness
     log_mean = np.log(np.maximum(local, 0.02 * median))
-    centred = log_mean - np.median(log_mean, axis=1, keepdims=True)
-    low, high = np.percentile(centred, [25, 75])
+    centred = log_mean - np.nanmedian(log_mean, axis=1, keepdims=True)
+    low, high = np.nanpercentile(centred, [25, 75])
     contrast = float(high - low) / 1.349  # rms of a normal with that spread: shadows and holes do not inflate it
+    seen = np.isfinite(centred)
     return SeabedStats(contrast, _correlation_length(centred, axis=0), _correlation_length(centred, axis=1),
-                       float((centred < math.log(0.5)).mean()))
+                       float((centred[seen] < math.log(0.5)).mean()))
+
+
+def target_beams(n_beams: int, spans: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Bool per beam: the beams of each (first, last) span of a target, grown on each side by the half local box
+    its return leaks into and a sixteenth of its width (its shadow's edge)."""
+    out = np.zeros(n_beams, bool)
+    for first, last in spans:
+        pad = LOCAL_BOX // 2 + 1 + (last - first) // 16
+        out[max(0, first - pad):min(n_beams, last + 1 + pad)] = True
+    return out
 
 
 def _correlation_length(centred: np.ndarray, axis: int) -> float:
-    """The first lag along `axis` where the autocorrelation falls below 1/e (half the extent when it never does)."""
-    variance = max(float((centred ** 2).mean()), 1e-12)
+    """The first lag along `axis` where the autocorrelation falls below 1/e (half the extent when it never does);
+    NaN cells (left-out beams) do not count."""
+    variance = max(float(np.nanmean(centred ** 2)), 1e-12)
     moved = np.moveaxis(centred, axis, 0)
     for lag in range(1, moved.shape[0] // 2):
-        if float((moved[lag:] * moved[:-lag]).mean()) / variance < math.exp(-1):
+        if float(np.nanmean(moved[lag:] * moved[:-lag])) / variance < math.exp(-1):
             return float(lag)
     return float(moved.shape[0] // 2)
 
