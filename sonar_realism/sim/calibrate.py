@@ -12,13 +12,15 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    median is the mounting, the spread the heave/pitch; then the height is corrected so the simulated onset
    lands on the real one (the same detector on both);
 3. the seabed: its roughness (`_match_relief`: no more relief shadow than the recording's dark seabed allows),
-   then patch contrast, correlation length and dark share of the mean level, matched by simulation;
+   then patch contrast, correlation length and dark share of the mean level, matched by simulation (the
+   targets' beams left out on both sides: `measure.target_beams`);
    targets: how often a shadow shows behind a return, its width (the target's size) and where it starts, then
    (under the final chain and mounting) the share and return gain that make the same detector find them as
    often and as bright in simulation (`match_shadow_targets`: it misses targets and takes some seabed for
    one); or, with `--targets-from`, the recording's own annotations (sim/annotations.py: YOLO boxes or
    class-id masks): how many frames show a target, how many each shows, their width across the fan, range and
-   return;
+   return; either way how deep their shadows are (`measure.shadow_level`), matched by the share of the seabed's
+   power the renderer leaves there (`match_shadow_floor`);
 4. the effects: a pattern search over every parameter the effect classes mark as calibrated, on frames of
    the calibrated setting (fingerprint in sim/fingerprint.py);
 5. the texture: the recording's own speckle and row gain (sim/texture.py; with `--texture learned`, the
@@ -28,8 +30,9 @@ PATH is anything `read_frames` reads (a recording, a folder of polar PNGs, the A
    own profile);
 6. under the final chain and texture: the mounting again (the onset's median and its spread over frames), the
    noise floor (the TVG noise amplitude whose share of black pixels is the recording's) and the residual
-   range/bearing gain; then the export knee (`match_export_knee`); last, with `learned`, the generator again on
-   the levels so settled, and the noise floor again under it;
+   range/bearing gain; then the export knee (`match_export_knee`); with `learned`, the generator again on the
+   levels so settled, and the noise floor again under it; last the seabed look on the final frames (the steps
+   since its match move its measured patchiness) and the noise floor under it;
 7. intervals: every number is re-estimated on bootstrap resamples of the frames (the effect parameters by a
    short local search from the fit), 5th-95th percentiles.
 """
