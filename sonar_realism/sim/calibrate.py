@@ -55,7 +55,14 @@ from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.models.speckle_fit import EXPORT_KNEE_LOW, top_ratio
 from sonar_realism.sim import measure
-from sonar_realism.sim.annotations import Annotations, mask_objects, measure_objects, parse_classes, read_annotations
+from sonar_realism.sim.annotations import (
+    AnnotatedObject,
+    Annotations,
+    mask_objects,
+    measure_objects,
+    parse_classes,
+    read_annotations,
+)
 from sonar_realism.sim.calibrated import (
     SeabedLook,
     calibrated_view,
@@ -688,6 +695,12 @@ def _shadow_estimate(levels: Sequence[float], rng: np.random.Generator, resample
     return _estimate(np.clip(finite, 0.0, 2.0), np.median, rng, resamples) if finite.size else _fixed(0.0)
 
 
+def _shadow_behind(image: np.ndarray, target: AnnotatedObject) -> float:
+    """`measure.shadow_level` behind an object (annotated or a mask's), on its bounding box."""
+    return measure.shadow_level(image, slice(int(target.rows.min()), int(target.rows.max()) + 1),
+                                slice(int(target.cols.min()), int(target.cols.max()) + 1))
+
+
 def _sim_shadow_level(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
     """Median `measure.shadow_level` behind the simulated targets (their masks' boxes) of up to `n` frames."""
     levels: list[float] = []
@@ -698,9 +711,7 @@ def _sim_shadow_level(calibration: Calibration, chain: Sequence[Effect], n: int,
         if not mask.any():
             continue
         image = per_frame_rescaled(finish(calibration, clean, chain, np.random.default_rng([seed, index])).intensity)
-        for target in mask_objects(mask):
-            levels.append(measure.shadow_level(image, slice(int(target.rows.min()), int(target.rows.max()) + 1),
-                                               slice(int(target.cols.min()), int(target.cols.max()) + 1)))
+        levels += [_shadow_behind(image, target) for target in mask_objects(mask)]
     finite = [v for v in levels if math.isfinite(v)]
     return float(np.median(finite)) if finite else math.nan
 
@@ -808,9 +819,8 @@ def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence
     if not sizes:
         raise ConfigError(f"calibrate: {annotations.source} mark no object in any frame (of the classes asked for); "
                           "leave out --targets-from to count targets by their shadows")
-    shadows = [measure.shadow_level(image, slice(int(o.rows.min()), int(o.rows.max()) + 1),
-                                    slice(int(o.cols.min()), int(o.cols.max()) + 1))
-               for image, objects in zip(images, annotations.objects, strict=True) for o in objects]
+    shadows = [_shadow_behind(image, o) for image, objects in zip(images, annotations.objects, strict=True)
+               for o in objects]
     return TargetTerms(_estimate((per_frame > 0).astype(float), np.mean, rng, resamples),
                        _estimate(np.clip(sizes, 0.02, 20.0), np.median, rng, resamples),
                        _estimate(np.array(where), np.median, rng, resamples),
