@@ -44,7 +44,7 @@ import dataclasses
 import math
 import sys
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -543,18 +543,25 @@ def _with_noise_floor_interval(fitted: tuple[FittedParameter, ...], calibration:
                  else p for p in fitted)
 
 
+def _frames_with_targets(calibration: Calibration, chain: Sequence[Effect], n: int,
+                         seed: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Finished calibrated frames (scaled to their maximum) that show a target, with their masks, out of the first
+    8 n views of `seed`; the caller stops when it has enough."""
+    for index in range(8 * n):
+        clean, mask = calibrated_view(calibration, seed, index)
+        if mask.any():
+            rng = np.random.default_rng([seed, index + 1])
+            yield per_frame_rescaled(finish(calibration, clean, chain, rng).intensity), mask
+
+
 def _sim_highlight(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
     """Median over simulated frames with a target of its return's 95th percentile over the seabed median."""
     ratios = []
-    index = 0
-    while len(ratios) < n and index < 8 * n:
-        clean, mask = calibrated_view(calibration, seed, index)
-        index += 1
-        if not mask.any():
-            continue
-        image = per_frame_rescaled(finish(calibration, clean, chain, np.random.default_rng([seed, index])).intensity)
+    for image, mask in _frames_with_targets(calibration, chain, n, seed):
         seabed = float(np.median(image[measure.seabed_rows(image):]))
         ratios.append(float(np.percentile(image[target_pixels(mask)], 95)) / max(seabed, 1e-6))
+        if len(ratios) >= n:
+            break
     return float(np.median(ratios)) if ratios else math.nan
 
 
@@ -704,14 +711,10 @@ def _shadow_behind(image: np.ndarray, target: AnnotatedObject) -> float:
 def _sim_shadow_level(calibration: Calibration, chain: Sequence[Effect], n: int, seed: int) -> float:
     """Median `measure.shadow_level` behind the simulated targets (their masks' boxes) of up to `n` frames."""
     levels: list[float] = []
-    index = 0
-    while len(levels) < n and index < 8 * n:
-        clean, mask = calibrated_view(calibration, seed, index)
-        index += 1
-        if not mask.any():
-            continue
-        image = per_frame_rescaled(finish(calibration, clean, chain, np.random.default_rng([seed, index])).intensity)
+    for image, mask in _frames_with_targets(calibration, chain, n, seed):
         levels += [_shadow_behind(image, target) for target in mask_objects(mask)]
+        if len(levels) >= n:
+            break
     finite = [v for v in levels if math.isfinite(v)]
     return float(np.median(finite)) if finite else math.nan
 
