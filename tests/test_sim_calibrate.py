@@ -338,7 +338,7 @@ def test_both_shipped_calibrations_load_by_name_and_simulate(tmp_path) -> None:
 
 
 def test_refit_calibration_texture_adds_a_generator_on_the_calibrations_own_levels(tmp_path: Path, recording) -> None:
-    script = load_repo_script("scripts/refit_calibration_texture.py", "refit_calibration_texture")
+    script = load_repo_script("scripts/refit_calibration.py", "refit_calibration")
     folder = tmp_path / "pngs"
     folder.mkdir()
     for i, frame in enumerate(recording[:MIN_FRAMES]):
@@ -347,8 +347,8 @@ def test_refit_calibration_texture_adds_a_generator_on_the_calibrations_own_leve
     speckled = dataclasses.replace(truth(), texture=fit_texture(images))
     save_calibration(speckled, tmp_path / "speckled.json")
     out = tmp_path / "learned.json"
-    assert script.main(["--calibration", str(tmp_path / "speckled.json"), "--real", str(folder), "--steps", "2",
-                        "--out", str(out)]) == 0
+    assert script.main(["texture", "--calibration", str(tmp_path / "speckled.json"), "--real", str(folder),
+                        "--steps", "2", "--out", str(out)]) == 0
     refit = load_calibration(out)
     assert refit.learned_texture is not None and refit.learned_texture.steps == 2
     assert (refit.grid, refit.mounting, refit.seabed) == (speckled.grid, speckled.mounting, speckled.seabed)
@@ -358,15 +358,26 @@ def test_refit_calibration_texture_adds_a_generator_on_the_calibrations_own_leve
     assert refit.texture is not None and refit.texture.level_edges == speckled.texture.level_edges
     # with --near-field the ring-down is matched to the recording's band first, and nothing else more
     near = tmp_path / "near.json"
-    assert script.main(["--calibration", str(tmp_path / "speckled.json"), "--real", str(folder), "--steps", "2",
-                        "--near-field", "--out", str(near)]) == 0
+    assert script.main(["texture", "--calibration", str(tmp_path / "speckled.json"), "--real", str(folder),
+                        "--steps", "2", "--near-field", "--out", str(near)]) == 0
     matched = load_calibration(near)
     assert matched.effects["ring_down"] != speckled.effects["ring_down"]
     assert {k: v for k, v in matched.effects.items() if k not in ("tvg_noise", "ring_down")} == \
         {k: v for k, v in speckled.effects.items() if k not in ("tvg_noise", "ring_down")}
     save_calibration(truth(), tmp_path / "plain.json")
     with pytest.raises(SystemExit, match="no fitted texture"):
-        script.main(["--calibration", str(tmp_path / "plain.json"), "--real", str(folder), "--out", str(out)])
+        script.main(["texture", "--calibration", str(tmp_path / "plain.json"), "--real", str(folder),
+                     "--out", str(out)])
+    # the export knee alone: fitted again, everything else kept
+    knee = tmp_path / "knee.json"
+    unfitted = dataclasses.replace(speckled, texture=dataclasses.replace(speckled.texture, export_knee=0.999))
+    save_calibration(unfitted, tmp_path / "unfitted.json")
+    assert script.main(["export-knee", "--calibration", str(tmp_path / "unfitted.json"), "--real", str(folder),
+                        "--out", str(knee)]) == 0
+    kneed = load_calibration(knee)
+    assert kneed.texture is not None and kneed.texture.export_knee != 0.999
+    assert dataclasses.replace(kneed.texture, export_knee=0.999) == unfitted.texture
+    assert (kneed.effects, kneed.seabed, kneed.targets) == (unfitted.effects, unfitted.seabed, unfitted.targets)
 
 
 def yolo_boxes(mask: np.ndarray) -> str:
@@ -402,7 +413,7 @@ def test_grey_shadows_are_measured_and_matched_and_black_ones_stay_black() -> No
 
 
 def test_refit_calibration_targets_measures_annotated_targets_and_keeps_the_rest(tmp_path: Path) -> None:
-    script = load_repo_script("scripts/refit_calibration_targets.py", "refit_calibration_targets")
+    script = load_repo_script("scripts/refit_calibration.py", "refit_calibration")
     recorded = truth(present=1.0, shadow_floor=0.3)
     images, labels = tmp_path / "images", tmp_path / "labels"
     images.mkdir()
@@ -412,7 +423,7 @@ def test_refit_calibration_targets_measures_annotated_targets_and_keeps_the_rest
         (labels / f"rec_{i:03d}.txt").write_text(yolo_boxes(mask), encoding="utf-8")
     save_calibration(truth(), tmp_path / "before.json")
     out = tmp_path / "after.json"
-    assert script.main(["--calibration", str(tmp_path / "before.json"), "--real", str(images),
+    assert script.main(["targets", "--calibration", str(tmp_path / "before.json"), "--real", str(images),
                         "--targets-from", str(labels), "--out", str(out)]) == 0
     before, after = truth(), load_calibration(out)
     assert (after.grid, after.mounting, after.seabed, after.effects) == (before.grid, before.mounting, before.seabed,
