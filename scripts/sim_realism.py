@@ -7,6 +7,9 @@ Oculus (default): calibrate on recording OCULUS_FIT_RECORDING (or take --calibra
 many frames as the held-out recording OCULUS_HELD_OUT_RECORDING has, and compare both the calibrated sim and
 the fit recording itself (the real-vs-real yardstick) with the held-out recording. Nothing is tuned on the
 held-out recording. ARIS: calibrate on every other frame of the water-tank set and compare with the others.
+`--against fit` reads the training side only, to choose between calibrations without the held-out recording:
+every third frame of the fit recording in its place, and the frames after those as the "yardstick" (neighbouring
+pings of the same recording: a floor, not a yardstick).
 
 Measures (all on frames scaled by their own maximum, the real export's rule):
 - whole-frame two-sample classifier on 128 x 128 model grids (evaluate.two_sample), balanced accuracy;
@@ -129,8 +132,12 @@ def main() -> int:
     parser.add_argument("--save-calibration", help="write the calibration made here to this path")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--aris", action="store_true", help="the ARIS water-tank set instead of the Oculus split")
+    parser.add_argument("--against", choices=("held-out", "fit"), default="held-out",
+                        help="compare with the held-out recording (the goals) or the fit recording (training side)")
     parser.add_argument("--json", help="write every figure to this JSON file")
     args = parser.parse_args()
+    if args.aris and args.against == "fit":
+        parser.error("--against fit: the Oculus split only (the ARIS set has one recording)")
     torch.set_num_threads(1)
     started = time.time()
 
@@ -143,7 +150,8 @@ def main() -> int:
         annotations = read_annotations(held, [real_aris_dir() / "Masks"], parse_classes("1-10"))
     else:
         fit_real = load_recording(real_oculus_dir(), OCULUS_FIT_RECORDING)
-        held = load_recording(real_oculus_dir(), OCULUS_HELD_OUT_RECORDING)
+        held = (load_recording(real_oculus_dir(), OCULUS_HELD_OUT_RECORDING) if args.against == "held-out"
+                else fit_real[0::3])
         config = CalibrateConfig()
         source = f"oculus_polar_seabed [{OCULUS_FIT_RECORDING}]"
         annotations = read_annotations(held, sorted(real_oculus_dir().glob("*/labels")))
@@ -153,7 +161,7 @@ def main() -> int:
         calibration = calibrate(fit_real, source, config, log=sys.stderr).calibration
         if args.save_calibration:
             save_calibration(calibration, args.save_calibration)
-    yardstick = evenly(fit_real, len(held))
+    yardstick = evenly(fit_real, len(held)) if args.against == "held-out" else fit_real[1::3][:len(held)]
 
     real_stats = statistics(scaled(held))
     metric_held, _ = prepare_frames(held, config)  # the tables calibrate measures sizes on
@@ -177,7 +185,8 @@ def main() -> int:
         results[name]["classifiers_per_seed"] = runs
     results["held_out_near_zero"] = real_stats["near_zero"]
     results["held_out_targets"] = object_statistics(metric_held, annotations.objects)
-    results["setting"] = {"set": "aris" if args.aris else "oculus", "held_out_frames": len(held),
+    results["setting"] = {"set": "aris" if args.aris else "oculus", "against": args.against,
+                          "held_out_frames": len(held),
                           "fit_frames": len(fit_real), "seeds": args.seeds, "calibration_distances":
                           calibration.distances, "seconds": round(time.time() - started, 1),
                           "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
