@@ -14,6 +14,7 @@ import pytest
 from sonar_realism.cli import main as cli_main
 from sonar_realism.errors import ConfigError
 from sonar_realism.io import read_frames
+from sonar_realism.sim import calibrate as calibrate_module
 from sonar_realism.sim import measure
 from sonar_realism.sim.annotations import mask_objects
 from sonar_realism.sim.calibrate import (
@@ -24,6 +25,7 @@ from sonar_realism.sim.calibrate import (
     match_near_field,
     match_onsets,
     match_shadow_floor,
+    match_targets,
     near_field_profile,
     sim_images,
 )
@@ -410,6 +412,26 @@ def test_grey_shadows_are_measured_and_matched_and_black_ones_stay_black() -> No
     assert matched.targets.shadow_floor == pytest.approx(0.3, abs=0.12)
     black = dataclasses.replace(unmatched, targets=dataclasses.replace(unmatched.targets, shadow_level=exact(0.0)))
     assert match_shadow_floor(black, chain, 12, seed=9).targets.shadow_floor == 0.0
+
+
+def test_annotated_targets_are_made_as_bright_as_the_recordings_brighter_or_dimmer_than_the_material() -> None:
+    """The return gain follows the recording's target return both ways: a recording whose targets return a third of
+    what the simulator's materials give gets a gain below 1 (dimmer than the material), one a third brighter a gain
+    above 1, and the simulated return lands near the recording's. (Much brighter cannot be reached on this scene:
+    a target that is the frame's maximum saturates the measure near 2.5.)"""
+    drawn = truth(present=1.0)
+    chain = drawn.effect_chain()
+    config = CalibrateConfig(sim_frames=8)
+    natural = calibrate_module._sim_highlight(drawn, chain, config.sim_frames, seed=2)
+    gains = {}
+    for factor in (1 / 3, 1.3):
+        wanted = dataclasses.replace(drawn, targets=dataclasses.replace(drawn.targets,
+                                                                        highlight=exact(natural * factor)))
+        matched = match_targets(wanted, chain, True, config, seed=2)
+        gains[factor] = matched.targets.highlight_gain
+        reached = calibrate_module._sim_highlight(matched, chain, config.sim_frames, seed=2)
+        assert reached == pytest.approx(natural * factor, rel=0.15)
+    assert gains[1 / 3] < 0.5 and gains[1.3] > 1.2
 
 
 def test_refit_calibration_targets_measures_annotated_targets_and_keeps_the_rest(tmp_path: Path) -> None:

@@ -799,14 +799,16 @@ def match_targets(calibration: Calibration, chain: Sequence[Effect], annotated: 
 
 def _with_highlight_matched(calibration: Calibration, simulated: float) -> Calibration:
     """The targets' return gain moved so that their `simulated` return (over the seabed median, as measured on
-    the recording) becomes the recording's `targets.highlight`, through the export's gamma (kept in 1..30)."""
+    the recording) becomes the recording's `targets.highlight`, through the export's gamma (kept in 0.1..30: the
+    simulator's materials are one choice of backscatter, and a recording's targets may return less, as the ARIS
+    tank's debris does)."""
     t = calibration.targets
     if not (math.isfinite(simulated) and simulated > 0):
         return calibration
     gamma = float(calibration.effects["gamma_quantization"]["gamma"])
     gain = t.highlight_gain * (t.highlight.value / simulated) ** (1 / gamma)
     return dataclasses.replace(calibration, targets=dataclasses.replace(
-        t, highlight_gain=round(float(np.clip(gain, 1.0, 30.0)), 3)))
+        t, highlight_gain=round(float(np.clip(gain, 0.1, 30.0)), 3)))
 
 
 def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence[np.ndarray],
