@@ -14,10 +14,9 @@ better (0.5: not told apart). The per-seed spread is wide (0.7–1.0): compare g
 from __future__ import annotations
 
 import argparse
-import json
+import copy
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -27,17 +26,18 @@ import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from sonar_realism.config import from_dict, to_dict  # noqa: E402
 from sonar_realism.data import OCULUS_FIT_RECORDING, real_oculus_dir  # noqa: E402
 from sonar_realism.evaluate.two_sample import TextureTestConfig, texture_two_sample_test  # noqa: E402
 from sonar_realism.sim.calibrate import load_recording  # noqa: E402
 from sonar_realism.sim.calibrated import simulate_calibrated  # noqa: E402
-from sonar_realism.sim.calibration import SHIPPED_CALIBRATIONS, Calibration, load_calibration  # noqa: E402
+from sonar_realism.sim.calibration import Calibration, load_calibration  # noqa: E402
 from sonar_realism.sim.fingerprint import per_frame_rescaled  # noqa: E402
 
 
 def with_parts(base: dict, donor: dict, paths: list[str]) -> dict:
     """A copy of `base` with the values at the dotted `paths` taken from `donor`."""
-    merged = json.loads(json.dumps(base))
+    merged = copy.deepcopy(base)
     for path in paths:
         *parents, key = path.split(".")
         source, target = donor, merged
@@ -48,10 +48,10 @@ def with_parts(base: dict, donor: dict, paths: list[str]) -> dict:
 
 
 def load_merged(merged: dict) -> Calibration:
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "calibration.json"
-        path.write_text(json.dumps(merged), encoding="utf-8")
-        return load_calibration(path)
+    """The merged calibration, validated as a loaded CALIB.json is (unknown keys and bad values are errors)."""
+    calibration = from_dict(Calibration, merged, where="calibration (base with the donor's parts)")
+    calibration.validate()
+    return calibration
 
 
 def main() -> int:
@@ -63,8 +63,7 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     args = parser.parse_args()
     torch.set_num_threads(1)
-    base, donor = (json.loads(SHIPPED_CALIBRATIONS.get(name, Path(name)).read_text(encoding="utf-8"))
-                   for name in (args.base, args.donor))
+    base, donor = (to_dict(load_calibration(name)) for name in (args.base, args.donor))
     fit = load_recording(real_oculus_dir(), OCULUS_FIT_RECORDING)
     reference = [per_frame_rescaled(frame.intensity) for frame in fit[0::3]]
     print("| parts from the donor | texture accuracy, mean | per seed |")

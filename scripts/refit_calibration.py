@@ -53,6 +53,11 @@ from sonar_realism.sim.fingerprint import fingerprint, per_frame_rescaled  # noq
 from sonar_realism.sim.texture import with_export_knee  # noqa: E402
 
 
+def recording_images(args: argparse.Namespace) -> list[np.ndarray]:
+    """The recording's frames as the export scaled them (to their maximum)."""
+    return [per_frame_rescaled(f.intensity) for f in load_recording(args.real, args.match, args.limit)]
+
+
 def refit_targets(calibration: Calibration, args: argparse.Namespace) -> tuple[Calibration, str]:
     config = CalibrateConfig(vertical_fov_deg=calibration.mounting.vertical_fov_deg)
     recording = load_recording(args.real, args.match, args.limit)
@@ -72,7 +77,7 @@ def refit_targets(calibration: Calibration, args: argparse.Namespace) -> tuple[C
 def refit_texture(calibration: Calibration, args: argparse.Namespace) -> tuple[Calibration, str]:
     if calibration.texture is None:
         raise SystemExit(f"{args.calibration}: no fitted texture (calibrate --texture none), so no learned one")
-    images = [per_frame_rescaled(f.intensity) for f in load_recording(args.real, args.match, args.limit)]
+    images = recording_images(args)
     config, target = CalibrateConfig(), fingerprint(images)
     if args.near_field:
         chain = match_near_field(calibration, calibration.effect_chain(), near_field_profile(images),
@@ -97,7 +102,7 @@ def refit_texture(calibration: Calibration, args: argparse.Namespace) -> tuple[C
 def refit_export_knee(calibration: Calibration, args: argparse.Namespace) -> tuple[Calibration, str]:
     if calibration.texture is None:
         raise SystemExit(f"{args.calibration}: no fitted texture, so no export knee to fit")
-    images = [per_frame_rescaled(f.intensity) for f in load_recording(args.real, args.match, args.limit)]
+    images = recording_images(args)
     calibration = dataclasses.replace(calibration, texture=with_export_knee(calibration.texture, images))
     assert calibration.texture is not None
     around_means = calibration.texture.export_knee
