@@ -48,8 +48,9 @@ def main() -> None:
     parser.add_argument("--recordings", help="comma-separated training recordings (default: every one in --real)")
     parser.add_argument("--detail", choices=["none", "input"], help="the mean field's fine detail (default: as is)")
     parser.add_argument("--texture", choices=["speckle", "learned"], help="the texture layer (default: as is)")
-    parser.add_argument("--sim", help="simulated frames the learned texture is drawn on while it is fitted "
-                                      "(default: the real frames' own decoded means)")
+    parser.add_argument("--sim", action="append", help="simulated frames the learned texture is drawn on while it "
+                        "is fitted (repeatable: the folders' frames pooled; default: the real frames' own decoded "
+                        "means)")
     parser.add_argument("--texture-fit", help="JSON of TextureFitConfig fields for the learned texture's fit "
                                               "(default: TextureFitConfig's)")
     parser.add_argument("--seed", type=int, default=0,
@@ -75,7 +76,8 @@ def main() -> None:
     recordings = {name.strip() for name in args.recordings.split(",") if name.strip()} if args.recordings else None
     fit_model_texture(model, texture_frames(args.real, recordings), info.get("normalisation", "frame_max"),
                       torch.device("cpu"), args.seed, schedule, progress=True,
-                      sim_frames=texture_frames(args.sim) if args.sim else None)
+                      sim_frames=[frame for folder in args.sim for frame in texture_frames(folder)] if args.sim
+                      else None)
     extra = {**retextured_info(info), "texture_refit_from": Path(args.checkpoint).name}
     print(f"wrote {save_checkpoint(model, args.out, extra, half=half)}")
 

@@ -81,3 +81,34 @@ def test_a_learned_texture_refit_with_the_runs_seed_is_the_runs_own_texture_step
     other = texture(tmp_path / "other.safetensors")
     assert all(torch.equal(v, same[k]) for k, v in original.items())
     assert not all(torch.equal(v, other[k]) for k, v in original.items())
+
+
+def test_the_texture_refit_on_several_simulated_folders_draws_on_their_frames_pooled(tmp_path, monkeypatch):
+    """Repeated --sim: the folders' frames in the order given, as if they were one folder (a probe of a texture drawn
+    on several simulators; docs/RESULTS.md, 2026-11-29)."""
+    write_frames(_frames("rec_a", 0), tmp_path / "real")
+    sims = {"calibrated": _frames("sim", 2)[:4],
+            "other": [SonarImage(np.full((48, 40), 200 - 20 * i, np.uint8), uniform_ranges(48, 30.0),
+                                 uniform_azimuths(40, np.radians(60)), seq=i) for i in range(4)]}
+    for name, frames in sims.items():
+        write_frames(frames, tmp_path / name)
+    write_frames([*sims["calibrated"], *sims["other"]], tmp_path / "one_folder")
+    model = CDFCVAEConfig(grid=(16, 16), widths=(4, 8, 8), latent_dim=4, bottleneck_hw=(2, 2), skips=1, dropout=0.0,
+                          output_stride=2, upsample="resize_conv", texture="learned")
+    torch.manual_seed(0)
+    source = save_checkpoint(CDFCVAE(model), tmp_path / "before.safetensors", {"normalisation": "frame_max"})
+    (tmp_path / "schedule.json").write_text(json.dumps(dataclasses.asdict(
+        TextureFitConfig(steps=3, crop=32, batch=2, generator_lr=1e-2))))
+
+    def refit_on(*folders: str) -> dict[str, torch.Tensor]:
+        out = tmp_path / f"{'+'.join(folders)}.safetensors"
+        monkeypatch.setattr(sys, "argv", ["refit_texture.py", "--checkpoint", str(source), "--real",
+                                          str(tmp_path / "real"), *(arg for folder in folders
+                                                                    for arg in ("--sim", str(tmp_path / folder))),
+                                          "--texture-fit", str(tmp_path / "schedule.json"), "--out", str(out)])
+        refit.main()
+        return {k: v for k, v in load_checkpoint(out)[0].state_dict().items() if k.startswith("texture.")}
+
+    pooled, together, alone = refit_on("calibrated", "other"), refit_on("one_folder"), refit_on("calibrated")
+    assert all(torch.equal(v, together[k]) for k, v in pooled.items())
+    assert not all(torch.equal(v, alone[k]) for k, v in pooled.items())
