@@ -9,7 +9,9 @@ checkpoint's own precision. Optionally it switches
 the mean field's fine detail (`--detail input`, models/cdfcvae.py), which the speckle is fitted around. Fit on the
 training recordings only, never on held-out ones. `--texture learned` swaps the speckle statistics for the learned
 texture (models/learned_texture.py; its adversarial fit takes about 0.15 s a step on 2 CPU cores), drawn while it
-is fitted on the decoded means of `--sim` frames (what the translator will texture; the shipped default's recipe):
+is fitted on the decoded means of `--sim` frames (what the translator will texture; the shipped default's recipe).
+`--sim` may be given more than once: the folders' frames pooled in order, e.g. to draw the texture on other
+simulators' frames as well (a probe; `train` draws on its one `--sim`; docs/RESULTS.md, 2026-11-29):
 
     python scripts/refit_texture.py --checkpoint runs/v10/model.safetensors \\
         --real ../shared/data/real/oculus_polar_seabed/dataset --recordings Oculus_20250805_173650 \\
