@@ -48,10 +48,9 @@ def with_parts(base: dict, donor: dict, paths: list[str]) -> dict:
 
 
 def load_merged(merged: dict) -> Calibration:
-    """The merged calibration, validated as a loaded CALIB.json is (unknown keys and bad values are errors)."""
-    calibration = from_dict(Calibration, merged, where="calibration (base with the donor's parts)")
-    calibration.validate()
-    return calibration
+    """The merged calibration, validated as a loaded CALIB.json is (`from_dict` rejects unknown keys and runs
+    `Calibration.validate`)."""
+    return from_dict(Calibration, merged, where="calibration (base with the donor's parts)")
 
 
 def main() -> int:
