@@ -51,6 +51,9 @@ from sonar_realism.sim.effects import BeamSidelobes, Effect, RingDown, apply_eff
 SENSOR = SensorConfig(n_ranges=128, n_beams=128, max_range_m=10.0, elevation_rays=16)
 PEDESTAL_OFF = BeamSidelobes.PARAM_BOUNDS["crosstalk_db"][0]
 FAST = DiagnoseConfig(fit_frames=4, eval_frames=8, bootstrap=30, search=SearchConfig(points=4, rounds=1))
+# Selection tests whose held-out judge is a table of gaps: the last finer search (a fit on the fit split) is left
+# out, as the table would not follow it.
+TABLE_JUDGED = DiagnoseConfig(max_effects=1, prune=False, gain_check=False, polish_rounds=0)
 
 
 def sim_frames(n: int, seed: int) -> list[SonarImage]:
@@ -286,7 +289,8 @@ def test_pruning_drops_an_effect_the_later_ones_make_redundant():
     problem = SelectionProblem(frames[:2], stats, (np.zeros((128, 128)),) * 2, scale, holdout, None, None, 1.0,
                                frames[0].ranges_m, np.degrees(frames[0].azimuths_rad))
     config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(), max_effects=3,
-                            min_gain=0.05, candidates_per_step=2, backfit=False, gain_check=False)
+                            min_gain=0.05, candidates_per_step=2, backfit=False, gain_check=False,
+                            polish_rounds=0)
     pruned = greedy_select(ranked, problem, config)
     assert [(s.action, s.effect) for s in pruned.path] == [
         ("start", "none"), ("add", "motion_blur"), ("add", "beam_sidelobes"), ("remove", "motion_blur")]
@@ -324,7 +328,8 @@ def first_step_with_a_rival(pick: Effect, rival: Effect, rival_gap: float, real_
                                None, 1.0, frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
                                real_images=images([real_effect]), sim_images=images)
     config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), statistics=StatisticsConfig(),
-                            max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False)
+                            max_effects=1, min_gain=0.05, backfit=False, prune=False, gain_check=False,
+                            polish_rounds=0)
     return greedy_select(ranked, problem, config)
 
 
@@ -501,7 +506,7 @@ def test_a_gain_is_named_only_if_significantly_at_least_min_gain():
                        after)]
         problem = SelectionProblem(frames, target, (np.zeros((128, 128)),) * 2, scale, None, target, before,
                                    gap(before, target, scale), frames[0].ranges_m, np.degrees(frames[0].azimuths_rad))
-        return greedy_select(ranked, problem, DiagnoseConfig(max_effects=1, prune=False, gain_check=False))
+        return greedy_select(ranked, problem, TABLE_JUDGED)
 
     scattered = select(0.97, 0.1)
     assert scattered.effects == [] and "not significantly by 5%" in scattered.stopped
@@ -529,11 +534,11 @@ def test_a_pick_without_its_signature_yields_to_a_rival_it_cannot_be_told_apart_
     problem = SelectionProblem(frames, target, (np.zeros((128, 128)),) * 2, scale, None, target, before,
                                gap(before, target, scale), frames[0].ranges_m, np.degrees(frames[0].azimuths_rad),
                                real_images=images([pulse]), sim_images=images)
-    chosen = greedy_select(ranked, problem, DiagnoseConfig(max_effects=1, prune=False, gain_check=False))
+    chosen = greedy_select(ranked, problem, TABLE_JUDGED)
     assert [(s.action, s.effect) for s in chosen.path] == [
         ("start", "none"), ("unconfirmed", "motion_blur"), ("add", "range_blur")]
     # the rival alone would not have been named
-    alone = greedy_select(ranked[1:], problem, DiagnoseConfig(max_effects=1, prune=False, gain_check=False))
+    alone = greedy_select(ranked[1:], problem, TABLE_JUDGED)
     assert alone.effects == [] and "not significantly by 5%" in alone.stopped
 
 
@@ -551,6 +556,44 @@ def test_a_ring_down_fit_tries_long_decays_before_switching_it_off():
     assert best.decay_m > 0.1 and best.amplitude > 0.3 and score < 1.0
     amplitude_first = {k: RingDown.PARAM_BOUNDS[k] for k in ("amplitude", "decay_m", "beam_ripple")}
     assert coordinate_search(start, amplitude_first, objective, SearchConfig())[0].amplitude == 0.0
+
+
+def test_a_search_from_a_later_round_only_takes_the_finer_steps_and_gets_closer():
+    # A minimum between the coarse grid's points: two rounds land half a step off; a polish (rounds 2 and 3 from
+    # there) moves by at most a quarter and an eighth of a step and ends nearer, never further.
+    bounds = {"amplitude": (0.0, 1.0)}
+    calls = []
+
+    def objective(effect: RingDown) -> float:
+        calls.append(effect.amplitude)
+        return abs(effect.amplitude - 0.41)
+
+    coarse, coarse_score, _ = coordinate_search(make_effect("ring_down"), bounds, objective, SearchConfig())
+    calls.clear()
+    polish = SearchConfig(rounds=4, first_round=2)
+    fine, fine_score, _ = coordinate_search(coarse, bounds, objective, polish)
+    step = 1.0 / (SearchConfig().points - 1)
+    assert max(abs(a - coarse.amplitude) for a in calls) <= step / 4 + step / 8 + 1e-9
+    assert fine_score < coarse_score and abs(fine.amplitude - 0.41) <= step / 8
+    with pytest.raises(ConfigError, match="first_round"):
+        SearchConfig(rounds=2, first_round=2).validate()
+
+
+def test_the_selected_effects_are_searched_at_finer_steps_last():
+    # "Real" = the sim's world through a gamma curve between the coarse grid's points (0.25, 0.725, 1.2). One
+    # coarse round stops on a grid point; three finer rounds from there end nearer the truth, as a "refit" step.
+    real = [apply_effects(f, [make_effect("gamma_quantization", gamma=0.45)], np.random.default_rng(0))
+            for f in sim_frames(12, seed=2)]
+    config = dataclasses.replace(FAST, effects=("gamma_quantization",), search=SearchConfig(points=3, rounds=1),
+                                 max_effects=1, prune=False, gain_check=False)
+    coarse = diagnose(sim_frames(12, seed=1), real, dataclasses.replace(config, polish_rounds=0))
+    fine = diagnose(sim_frames(12, seed=1), real, dataclasses.replace(config, polish_rounds=3))
+    assert coarse.selected == fine.selected == ("gamma_quantization",)
+    assert [(s.action, s.effect) for s in fine.selection_path][-1] == ("refit", "all")
+    assert coarse.selection_path[-1].action == "add"
+    coarse_gamma, fine_gamma = (r.selected_effects[0].params["gamma"] for r in (coarse, fine))
+    assert coarse_gamma in (0.25, 0.725, 1.2)
+    assert abs(fine_gamma - 0.45) < abs(coarse_gamma - 0.45) - 0.05
 
 
 def test_cli_writes_diagnosis_json_and_report(tmp_path):

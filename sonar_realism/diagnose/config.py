@@ -17,16 +17,18 @@ MIN_FRAMES_PER_SPLIT = 2
 @dataclass(frozen=True)
 class SearchConfig:
     """points: coarse grid values per parameter; rounds: 1 coarse round + (rounds - 1) finer rounds that try half a
-    grid step either side of the best value;
+    grid step either side of the best value, halving the step each round; first_round: the rounds before it are
+    skipped (a fit already made, searched on from where it is at the finer steps);
     seed: the random draws shared by every candidate."""
 
     points: int = 5
     rounds: int = 2
     seed: int = 0
+    first_round: int = 0
 
     def validate(self) -> None:
-        if self.points < 2 or self.rounds < 1:
-            raise ConfigError("SearchConfig: points >= 2 and rounds >= 1")
+        if self.points < 2 or self.rounds < 1 or not 0 <= self.first_round < self.rounds:
+            raise ConfigError("SearchConfig: points >= 2, rounds >= 1 and 0 <= first_round < rounds")
 
 
 @dataclass(frozen=True)
@@ -37,7 +39,9 @@ class DiagnoseConfig:
     max_effects, min_gain, candidates_per_step: greedy selection (an effect must close at least min_gain of the
     gap before to be selected; effects found by their signature alone come on top of max_effects);
     significance: one-sided level of the paired bootstrap test an effect's gain must pass to be selected
-    (0 = no test); backfit: refit the chosen effects around each new candidate;
+    (0 = no test); backfit: refit the chosen effects around each new candidate; polish_rounds: finer search
+    rounds (each halving the step) every effect the gap selected gets last, each around the others, on the fit
+    split (0 = none);
     prune: after forward selection, drop effects the others make redundant; gain_check: drop selected effects
     that do no better than a fixed per-range and per-beam gain pattern; effects: the candidates (empty = the
     whole catalogue); normalize: "max" divides every frame by its maximum before measuring (for real sets
@@ -55,6 +59,7 @@ class DiagnoseConfig:
     candidates_per_step: int = 3
     significance: float = 0.95
     backfit: bool = True
+    polish_rounds: int = 2
     prune: bool = True
     gain_check: bool = True
     effects: tuple[str, ...] = ()
@@ -76,6 +81,8 @@ class DiagnoseConfig:
             raise ConfigError("diagnose: max_effects >= 0, candidates_per_step >= 1, 0 <= min_gain < 1")
         if not 0.0 <= self.significance < 1.0:
             raise ConfigError(f"diagnose.significance: must be in [0, 1), got {self.significance}")
+        if self.polish_rounds < 0:
+            raise ConfigError(f"diagnose.polish_rounds: at least 0, got {self.polish_rounds}")
         if self.bootstrap < 1:
             raise ConfigError(f"diagnose.bootstrap: at least 1 resample, got {self.bootstrap}")
         if self.workers < 1:

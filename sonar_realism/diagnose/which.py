@@ -234,7 +234,7 @@ def coordinate_search(start: T, bounds: dict[str, tuple[float, float]], objectiv
         other_score = score(other)
         if other_score < best:
             best, current = other_score, other
-    for round_index in range(search.rounds):
+    for round_index in range(search.first_round, search.rounds):
         for param, (low, high) in bounds.items():
             log_scale = low > 0 and high / low >= 20  # parameters spanning decades are searched on a log grid
             to_grid, from_grid = (np.log, np.exp) if log_scale else (float, float)
@@ -887,6 +887,19 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         if progress:
             why = f"fitted with {', '.join(off)} off" if off else "does no more than a gain pattern"
             progress(f"{effect.name} {why} ({fit.describe()}): not blamed; held-out gap {gap_rest:.4g}")
+
+    if c.polish_rounds and chosen:
+        # the forward steps searched one round each around a set still changing; the set now stands, and the
+        # finer steps cost a few evaluations per parameter (the fit split decides, as for every fit)
+        polish = dataclasses.replace(c.search, first_round=c.search.rounds, rounds=c.search.rounds + c.polish_rounds)
+        for i, effect in enumerate(chosen):
+            others = [*chosen[:i], *chosen[i + 1:]]
+            chosen[i] = fit_effect(effect.name, problem.fit_frames, problem.fit_target, problem.scale, base=others,
+                                   start=effect, search=polish, statistics=c.statistics, normalize=c.normalize).effect
+        current, current_stats = holdout(chosen)
+        path.append(Step("refit", "all", current))
+        if progress:
+            progress(f"the selected effects searched {c.polish_rounds} finer rounds: held-out gap {current:.4g}")
 
     found: list[Found] = []
     names = {solo.ranked.name for solo in ranked}
