@@ -892,14 +892,18 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         # the forward steps searched one round each around a set still changing; the set now stands, and the
         # finer steps cost a few evaluations per parameter (the fit split decides, as for every fit)
         polish = dataclasses.replace(c.search, first_round=c.search.rounds, rounds=c.search.rounds + c.polish_rounds)
-        for i, effect in enumerate(chosen):
-            others = [*chosen[:i], *chosen[i + 1:]]
-            chosen[i] = fit_effect(effect.name, problem.fit_frames, problem.fit_target, problem.scale, base=others,
-                                   start=effect, search=polish, statistics=c.statistics, normalize=c.normalize).effect
-        current, current_stats = holdout(chosen)
-        path.append(Step("refit", "all", current))
-        if progress:
-            progress(f"the selected effects searched {c.polish_rounds} finer rounds: held-out gap {current:.4g}")
+        polished = list(chosen)
+        for i, effect in enumerate(polished):
+            others = [*polished[:i], *polished[i + 1:]]
+            polished[i] = fit_effect(effect.name, problem.fit_frames, problem.fit_target, problem.scale, base=others,
+                                     start=effect, search=polish, statistics=c.statistics,
+                                     normalize=c.normalize).effect
+        gap_polished, stats_polished = holdout(polished)
+        if math.isfinite(gap_polished):  # inf: the finer values make invalid held-out frames; keep the set as it was
+            chosen, current, current_stats = polished, gap_polished, stats_polished
+            path.append(Step("refit", "all", current))
+            if progress:
+                progress(f"the selected effects searched {c.polish_rounds} finer rounds: held-out gap {current:.4g}")
 
     found: list[Found] = []
     names = {solo.ranked.name for solo in ranked}
