@@ -607,6 +607,10 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     burden is on the gain pattern, so a true effect that the statistics tell from a gain only weakly (a multipath
     ghost on a seabed-filled scene) is kept.
 
+    Then (`polish_rounds`) every effect the gap selected is searched that many rounds more, at the finer steps only,
+    around the others as they stand (on the fit split), and the set's held-out gap is measured again: a "refit"
+    step of "all". The forward steps searched one round each around a set still changing.
+
     Last, when interference is a candidate and not selected, the real held-out frames with a line that moves are
     counted against the corrected sim's (`arcs.find_lines`): significantly more find it, with the parameters the
     lines measure (`arcs.interference_from_lines`), listed in `found`. It comes after the gain check because a
