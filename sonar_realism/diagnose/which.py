@@ -632,20 +632,26 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     stopped = f"reached max_effects={c.max_effects}"
     unconfirmed: list[Unconfirmed] = []
 
-    def refit(name: str, base: Sequence[Effect], start: Effect) -> Fit:
-        # the catalogue's default (a term's calibrated start) is the other start: a fit made while another effect
-        # was missing may sit in a compromise (a gamma curve bent to mimic speckle) from which one coordinate round
-        # does not come back
+    def refit(name: str, base: Sequence[Effect], start: Effect, search: SearchConfig = one_round,
+              restart: bool = True) -> Fit:
+        # the catalogue's default (a term's calibrated start) is the other start (`restart`): a fit made while
+        # another effect was missing may sit in a compromise (a gamma curve bent to mimic speckle) from which one
+        # coordinate round does not come back
         return fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, base=base, start=start,
-                          search=one_round, statistics=c.statistics, normalize=c.normalize,
-                          alternatives=[problem.start(name), *problem.other_starts(name)])
+                          search=search, statistics=c.statistics, normalize=c.normalize,
+                          alternatives=[problem.start(name), *problem.other_starts(name)] if restart else ())
+
+    def refit_in_turn(effects: Sequence[Effect], around: Sequence[Effect] = (), search: SearchConfig = one_round,
+                      restart: bool = True) -> list[Effect]:
+        """Each effect refitted in turn around the others as they now stand (and `around`)."""
+        effects = list(effects)
+        for i, previous in enumerate(effects):
+            effects[i] = refit(previous.name, [*effects[:i], *effects[i + 1:], *around], previous, search,
+                               restart).effect
+        return effects
 
     def refit_each(effects: Sequence[Effect], around: Sequence[Effect] = ()) -> list[Effect]:
-        effects = list(effects)
-        if c.backfit:
-            for i, previous in enumerate(effects):
-                effects[i] = refit(previous.name, [*effects[:i], *effects[i + 1:], *around], previous).effect
-        return effects
+        return refit_in_turn(effects, around) if c.backfit else list(effects)
 
     def holdout(effects: Sequence[Effect], gain: GainPattern | None = None) -> tuple[float, Stats | None]:
         return problem.holdout(effects, gain)
@@ -896,12 +902,7 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
         # the forward steps searched one round each around a set still changing; the set now stands, and the
         # finer steps cost a few evaluations per parameter (the fit split decides, as for every fit)
         polish = dataclasses.replace(c.search, first_round=c.search.rounds, rounds=c.search.rounds + c.polish_rounds)
-        polished = list(chosen)
-        for i, effect in enumerate(polished):
-            others = [*polished[:i], *polished[i + 1:]]
-            polished[i] = fit_effect(effect.name, problem.fit_frames, problem.fit_target, problem.scale, base=others,
-                                     start=effect, search=polish, statistics=c.statistics,
-                                     normalize=c.normalize).effect
+        polished = refit_in_turn(chosen, search=polish, restart=False)  # on from where each is
         gap_polished, stats_polished = holdout(polished)
         if math.isfinite(gap_polished):  # inf: the finer values make invalid held-out frames; keep the set as it was
             chosen, current, current_stats = polished, gap_polished, stats_polished
