@@ -35,6 +35,7 @@ from sonar_realism.diagnose.which import (
     Selection,
     SelectionProblem,
     Solo,
+    carries_counts,
     coordinate_search,
     greedy_select,
     physics_off,
@@ -229,6 +230,33 @@ def test_an_effect_with_its_own_physics_off_is_only_a_gain():
     assert physics_off(make_effect("water_column", haze_level=0.001)) == ("haze_level",)
     assert physics_off(make_effect("water_column", haze_level=0.04)) == ()
     assert physics_off(make_effect("speckle")) == ()  # no reduction to a gain declared
+
+
+def test_8_bit_counts_in_the_real_frames_keep_an_output_mapping_a_gain_pattern_would_stand_in_for():
+    # A held-out judge given as a table: the output mapping closes most of the gap, and a gain pattern in its
+    # place closes more. Where the real frames are 8-bit counts, as the frames with the mapping are and the
+    # frames with the pattern are not, the pattern cannot be what the real frames show: the mapping is kept.
+    frames = sim_frames(4, seed=3)
+    images = np.stack([f.normalized() for f in frames])
+    floats, counts = frame_statistics(images), frame_statistics(np.round(images * 255) / 255)
+    mapping = make_effect("gamma_quantization", gamma=1.0)
+
+    def select(target):
+        def holdout(effects, gain=None):
+            if gain is not None:
+                return 0.1, floats
+            return (0.2, counts) if effects else (1.0, floats)
+
+        problem = SelectionProblem(frames[:2], target, (np.zeros((128, 128)),) * 2, FeatureScale.pooled(floats, counts),
+                                   holdout, target, floats, 1.0, frames[0].ranges_m, np.degrees(frames[0].azimuths_rad))
+        ranked = [Solo(RankedEffect("gamma_quantization", mapping.params(), 0.2, 0.0, 0.8, 1.0), mapping, counts)]
+        config = DiagnoseConfig(search=SearchConfig(points=2, rounds=1), max_effects=1, significance=0.0,
+                                backfit=False, prune=False, polish_rounds=0)
+        return greedy_select(ranked, problem, config)
+
+    assert [e.name for e in select(counts).effects] == ["gamma_quantization"]
+    assert [(s.action, s.effect) for s in select(floats).path][-1] == ("gain_stand_in", "gamma_quantization")
+    assert carries_counts(counts) and not carries_counts(floats)
 
 
 def test_bootstrap_frequency_splits_between_equals_and_goes_to_the_clearly_better():

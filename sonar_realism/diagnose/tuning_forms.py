@@ -17,6 +17,20 @@ held-out half (`diagnose/heldout/`) stays untouched. Run them with
 | ring_down          | exponential decay, per-ping beam ripple   | flat shoulder with a logistic fall, fixed ripple   |
 | interference       | arcs across the whole fan                 | partial arcs over part of the fan                  |
 | gamma_quantization | power law then 8-bit rounding             | two-slope linear transfer then 8-bit rounding      |
+
+A third group (added in round 20, when the first two no longer showed failures), one more form per family:
+
+| effect             | here                                                                                    |
+|--------------------|-----------------------------------------------------------------------------------------|
+| speckle            | fully developed speckle on a log-normal (not gamma) seabed texture                      |
+| beam_sidelobes     | two grating lobes far across the fan, dark beams between                                |
+| range_blur         | an untapered chirp's sinc^2 power PSF (-13 dB sidelobes)                                |
+| tvg_noise          | noise before a gain rising as the range; the absorption the gain leaves out             |
+| elevation_spread   | a Gaussian vertical pattern pointed a few degrees off the tilt, no floor                |
+| multipath          | a sea-surface path: the ghost's delay falls with range                                   |
+| motion_blur        | two pings averaged while turning and moving: a double image, not a smear                 |
+| interference       | unmatched sweeps: broad bands across the fan with their own speckle                     |
+| gamma_quantization | a logistic S-curve kept to 6 bits                                                       |
 """
 
 from __future__ import annotations
@@ -244,3 +258,157 @@ def random_yaw_triangle(x: np.ndarray, frame: SonarImage, p: dict[str, float], p
         return amplitude
     taps = np.arange(-math.ceil(half_width), math.ceil(half_width) + 1, dtype=np.float64)
     return _convolve_power(amplitude, np.maximum(1.0 - np.abs(taps) / half_width, 0.0), axis=1)
+
+
+# Added in round 20 (a third group, written before any was run, to find failures the first two no longer show):
+# last, so every earlier form keeps its draws.
+@tuning_form("speckle", "lognormal_patches",
+             log_sigma=Param((0.2, 0.6), (0.05, 1.0)),
+             patch_bins=Param((3.0, 10.0), (1.0, 20.0)),
+             grain=Param((0.5, 2.0), (0.3, 3.5), "grain_beams"))
+def lognormal_patches(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                      instrument: np.random.Generator) -> np.ndarray:
+    """Fully developed speckle (a complex white field blurred to the resolution cell, `grain` cells either way)
+    on a seabed whose backscatter varies as a log-normal of log-rms `log_sigma` correlated over `patch_bins`:
+    a texture law with a lighter tail than the gamma's."""
+    field = ping.standard_normal((2, *x.shape)).astype(np.float32)
+    cell = max(p["grain"], 0.3)
+    looks = sum(cv2.GaussianBlur(part, (0, 0), cell, borderType=cv2.BORDER_REFLECT_101) ** 2 for part in field)
+    speckle = looks / max(float(looks.mean()), 1e-12)
+    patches = cv2.GaussianBlur(ping.standard_normal(x.shape).astype(np.float32), (0, 0), p["patch_bins"],
+                               borderType=cv2.BORDER_REFLECT_101)
+    patches /= max(float(patches.std()), 1e-12)
+    texture = np.exp(p["log_sigma"] * patches - 0.5 * p["log_sigma"] ** 2)
+    return (x * np.sqrt(speckle * texture)).astype(np.float32)
+
+
+@tuning_form("beam_sidelobes", "grating_lobes",
+             lobe_db=Param((-24.0, -12.0), (-32.0, -8.0), "sidelobe_db"),
+             offset_beams=Param((8.0, 30.0), (4.0, 50.0), integer=True),
+             mainlobe_deg=Param((0.4, 2.0), (0.2, 3.0), "mainlobe_deg"))
+def grating_lobes(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                  instrument: np.random.Generator) -> np.ndarray:
+    """An array whose elements sit more than half a wavelength apart: beside a Gaussian mainlobe (-3 dB width
+    `mainlobe_deg`) two grating lobes at `offset_beams` either side, each `lobe_db` down and as wide as the
+    mainlobe: a bright echo comes back as two faint copies far across the fan, with dark beams between."""
+    step = math.degrees(frame.fov_rad) / max(x.shape[1] - 1, 1)
+    sigma = max(p["mainlobe_deg"] / 2.355 / step, 0.3)
+    offset = int(p["offset_beams"])
+    half = offset + int(math.ceil(3 * sigma))
+    k = np.arange(-half, half + 1, dtype=np.float64)
+    lobe = 10 ** (p["lobe_db"] / 10)
+    kernel = (np.exp(-0.5 * (k / sigma) ** 2) + lobe * np.exp(-0.5 * ((np.abs(k) - offset) / sigma) ** 2))
+    return _convolve_power(x, kernel, axis=1)
+
+
+@tuning_form("range_blur", "sinc_chirp",
+             resolution_m=Param((0.03, 0.25), (0.005, 0.5), "resolution_m"))
+def sinc_chirp(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+               instrument: np.random.Generator) -> np.ndarray:
+    """A pulse-compressed chirp without a taper: the power PSF along range is sinc^2 with its first null
+    `resolution_m` out, its sidelobes -13 dB and falling slowly (kept to six lobes either side)."""
+    width = max(p["resolution_m"] / bin_m(frame), 0.3)
+    half = int(min(math.ceil(6 * width), x.shape[0] - 1))
+    d = np.arange(-half, half + 1, dtype=np.float64)
+    return _convolve_power(x, np.sinc(d / width) ** 2, axis=0)
+
+
+@tuning_form("tvg_noise", "noise_before_gain",
+             noise_level=Param((0.04, 0.15), (0.01, 0.4), "noise_amplitude"),
+             absorption_db_per_m=Param((0.1, 0.8), (0.0, 1.5), "absorption_db_per_m"))
+def noise_before_gain(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                      instrument: np.random.Generator) -> np.ndarray:
+    """The receiver's noise enters before a gain that rises as the range (spreading only): its amplitude grows in
+    proportion to range, reaching `noise_level` at the far end; the absorption the gain leaves out dims the
+    echoes by `absorption_db_per_m` two-way. Noise and echo add as complex fields (Rayleigh where no echo)."""
+    r = frame.ranges_m[:, None]
+    echo = x * 10 ** (-p["absorption_db_per_m"] * (r - r[0]) / 20)
+    level = p["noise_level"] * r / r[-1]
+    noise = (ping.standard_normal(x.shape) + 1j * ping.standard_normal(x.shape)) / math.sqrt(2)
+    return np.abs(echo + level * noise).astype(np.float32)
+
+
+@tuning_form("elevation_spread", "mispointed_gaussian",
+             beamwidth_deg=Param((8.0, 30.0), (4.0, 50.0), "beamwidth_deg"),
+             mispoint_deg=Param((-4.0, 4.0), (-8.0, 8.0)))
+def mispointed_gaussian(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                        instrument: np.random.Generator) -> np.ndarray:
+    """A Gaussian two-way vertical pattern (half power at +-`beamwidth_deg`/2) whose axis points
+    `mispoint_deg` off the nominal tilt (a transducer mounted a few degrees off), no floor: every pixel weighted by
+    it at the elevation a flat seabed at the frame's altitude and tilt is seen at."""
+    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
+    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
+    phi = seabed_elevation(frame, altitude, tilt) - math.radians(p["mispoint_deg"])
+    half = math.radians(p["beamwidth_deg"]) / 2
+    return (x * np.exp(0.5 * math.log(0.5) * (phi / half) ** 2)).astype(np.float32)
+
+
+@tuning_form("multipath", "surface_bounce",
+             reflection=Param((0.35, 0.75), (0.2, 0.95), "reflection_coeff"),
+             depth_m=Param((1.0, 4.0), (0.3, 8.0)))
+def surface_bounce(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                   instrument: np.random.Generator) -> np.ndarray:
+    """A path off the sea surface `depth_m` above the sonar: an echo from range r comes back again after the
+    image path, sqrt(r^2 + (2 depth)^2) - r further (long near the sonar, short far out), times `reflection`^2
+    in power."""
+    r = frame.ranges_m
+    delayed = np.sqrt(r * r + (2 * p["depth_m"]) ** 2)
+    power = (x * x).astype(np.float64)
+    ghost = np.zeros_like(power)
+    at = np.searchsorted(r, delayed)  # the row each row's ghost lands on
+    inside = at < r.size
+    np.add.at(ghost, at[inside], power[inside])
+    return np.sqrt(power + p["reflection"] ** 2 * ghost).astype(np.float32)
+
+
+@tuning_form("motion_blur", "two_look_average",
+             yaw_rate_deg_s=Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s"),
+             surge_m_s=Param((0.2, 1.5), (0.0, 3.0), "surge_m_s"),
+             interval_s=Param((0.05, 0.25), (0.02, 0.4), "integration_s"))
+def two_look_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                     instrument: np.random.Generator) -> np.ndarray:
+    """The sonar averages two pings `interval_s` apart (a ping-to-ping filter) while it turns at
+    `yaw_rate_deg_s` and moves at `surge_m_s`: the power of the frame and of the frame turned and moved by that
+    much, averaged (a double image, not a smear)."""
+    step = frame.fov_rad / max(x.shape[1] - 1, 1)
+    shift_beams = math.radians(p["yaw_rate_deg_s"]) * p["interval_s"] / step
+    shift_rows = p["surge_m_s"] * p["interval_s"] / bin_m(frame)
+    power = (x * x).astype(np.float32)
+    moved = cv2.warpAffine(power, np.float32([[1, 0, shift_beams], [0, 1, -shift_rows]]),
+                           (x.shape[1], x.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+    return np.sqrt(0.5 * (power + moved)).astype(np.float32)
+
+
+@tuning_form("interference", "thick_sweeps",
+             rate_per_ping=Param((0.6, 2.5), (0.2, 5.0), "rate_per_ping"),
+             amplitude=Param((0.2, 0.6), (0.1, 1.2), "amplitude"),
+             thickness_m=Param((0.2, 0.5), (0.1, 1.0), "thickness_m"))
+def thick_sweeps(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                 instrument: np.random.Generator) -> np.ndarray:
+    """Another sonar's frequency sweeps, not matched to this receiver's filter: per ping a Poisson number of
+    broad bands across the whole fan, each a flat top `thickness_m` deep with soft edges at a random range, at
+    power `amplitude`^2, with a speckle of their own (the sweep's phase wanders over the array)."""
+    power = (x * x).astype(np.float64)
+    r = frame.ranges_m
+    for _ in range(int(ping.poisson(p["rate_per_ping"]))):
+        at = ping.uniform(r[0], r[-1])
+        along = 1.0 / (1.0 + np.exp((np.abs(r - at) - p["thickness_m"] / 2) / (0.1 * p["thickness_m"])))
+        grain = ping.exponential(1.0, x.shape)
+        power += p["amplitude"] ** 2 * along[:, None] * grain
+    return np.sqrt(power).astype(np.float32)
+
+
+@tuning_form("gamma_quantization", "s_curve_6bit",
+             gain=Param((0.8, 3.0), (0.4, 6.0), "gain"),
+             midpoint=Param((0.15, 0.4), (0.05, 0.6)),
+             steepness=Param((4.0, 12.0), (2.0, 20.0)))
+def s_curve_6bit(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                 instrument: np.random.Generator) -> np.ndarray:
+    """A display that maps the input through a logistic S-curve (centred at `midpoint` after a `gain`, of
+    `steepness`, rescaled to span 0 to 1) and keeps 6 bits: 64 levels written as 8-bit counts."""
+    u = np.clip(p["gain"] * x, 0.0, 1.0)
+    s = 1.0 / (1.0 + np.exp(-p["steepness"] * (u - p["midpoint"])))
+    lo = 1.0 / (1.0 + math.exp(p["steepness"] * p["midpoint"]))
+    hi = 1.0 / (1.0 + math.exp(-p["steepness"] * (1.0 - p["midpoint"])))
+    levels = np.round(63 * (s - lo) / (hi - lo))
+    return np.round(levels * 255.0 / 63.0).astype(np.uint8)

@@ -63,7 +63,7 @@ from sonar_realism.diagnose.result import (
 from sonar_realism.diagnose.scene_terms import SceneTerm, apply_scene_terms, kind_of
 from sonar_realism.diagnose.smear import BLURS, SmearCheck, check_smear
 from sonar_realism.errors import FrameError
-from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
+from sonar_realism.evaluate.statistics import StatisticsConfig, feature_names, frame_statistics
 from sonar_realism.frames import SonarImage
 from sonar_realism.parallel import parallel_map
 from sonar_realism.sim.effects import (
@@ -395,6 +395,15 @@ def _spots(profile_db: np.ndarray, axis: np.ndarray) -> tuple[GainSpot, ...]:
     extremes = [int(i) for i in (np.argmax(centred), np.argmin(centred))
                 if abs(centred[i]) >= SPOT_MIN_DB and all(abs(int(i) - j) > width for j in isolated)]
     return tuple(GainSpot(i, float(axis[i]), float(centred[i])) for i in [*isolated, *dict.fromkeys(extremes)])
+
+
+QUANTIZED = feature_names()["intensity"].index("quantized_fraction")
+
+
+def carries_counts(stats: Stats | None) -> bool:
+    """Whether the frames behind `stats` lie on 8-bit steps (nearly every pixel): the mark of an 8-bit export,
+    which an output mapping that quantizes gives and a gain pattern does not."""
+    return stats is not None and float(np.mean(stats["intensity"][:, QUANTIZED])) >= 0.99
 
 
 def physics_off(effect: Effect) -> tuple[str, ...]:
@@ -876,6 +885,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
         pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
+        if carries_counts(problem.target) and carries_counts(current_stats) and not carries_counts(stats_gain):
+            continue  # the real frames are 8-bit counts, as with the effect: no gain pattern in its place makes them
         # an effect fitted with its own physics off is a gain (a TVG curve without noise, per-ping beam gains
         # without haze) standing in for a gain error the catalogue lacks, however well it does that
         off = physics_off(effect)
