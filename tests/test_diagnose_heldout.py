@@ -259,8 +259,8 @@ def test_the_validation_runs_small_end_to_end_on_both_halves():
     bench = load_repo_script("bench/bench_diagnose_heldout.py", "bench_diagnose_heldout")
     config = dataclasses.replace(bench.QUICK_CONFIG, effects=("gamma_quantization", "speckle", "tvg_noise",
                                                               "range_blur"))
-    rows = bench.accuracy("default:16", config, lambda message: None, only=("gamma_quantization/two_slope", "range_blur/lorentzian"),
-                          registry=bench.TUNING)
+    rows = bench.accuracy("default:16", config, lambda message: None,
+                          only=("gamma_quantization/two_slope", "range_blur/lorentzian"), registry=bench.TUNING)
     assert [r["implementation"] for r in rows] == ["none (null)", "range_blur/lorentzian",
                                                    "gamma_quantization/two_slope"]
     assert rows[0]["selected"] == [] and all(r["top1_correct"] for r in rows[1:])
