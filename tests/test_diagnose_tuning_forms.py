@@ -123,3 +123,53 @@ def test_cos_power_weights_the_seabed_by_elevation_and_partial_arcs_cover_part_o
                rate_per_ping=5.0, span=0.3)
     lit = arcs.max(axis=0) > 0.05
     assert lit.any() and not lit.all()
+
+
+def test_grating_lobes_put_faint_copies_far_across_the_fan_with_dark_beams_between():
+    out = run("beam_sidelobes/grating_lobes", point(), lobe_db=-15.0, offset_beams=20, mainlobe_deg=0.5)
+    copy_db = 20 * math.log10(out[ROW, BEAM + 20] / out[ROW, BEAM])
+    assert copy_db == pytest.approx(-15.0, abs=1.5) and out[ROW, BEAM - 20] == pytest.approx(out[ROW, BEAM + 20])
+    assert out[ROW, BEAM + 10] < 1.5 * 0.02 and out[ROW + 5, BEAM] == pytest.approx(0.02, rel=0.05)
+
+
+def test_the_chirp_spreads_a_point_along_range_with_sidelobes_13_db_down():
+    out = run("range_blur/sinc_chirp", frame_of(np.where(point().intensity > 0.5, 1.0, 0.0)), resolution_m=0.25)
+    width = 0.25 / (10.0 / (N_RANGES - 1))  # bins to the first null: 5
+    power = out[:, BEAM] ** 2
+    first_sidelobe = power[ROW + int(round(1.5 * width))] / power[ROW]
+    assert 10 * math.log10(first_sidelobe) == pytest.approx(-13.3, abs=1.5)
+    assert out[ROW, BEAM + 2] == 0.0
+
+
+def test_noise_before_the_gain_grows_with_range_and_the_echoes_dim():
+    dark = run("tvg_noise/noise_before_gain", frame_of(np.zeros((N_RANGES, N_BEAMS), np.float32)),
+               noise_level=0.2, absorption_db_per_m=0.0)
+    assert dark[-20:].mean() > 5 * dark[:20].mean()
+    flat = run("tvg_noise/noise_before_gain", frame_of(np.full((N_RANGES, N_BEAMS), 0.5, np.float32)),
+               noise_level=0.0, absorption_db_per_m=1.0)
+    assert 20 * math.log10(flat[-1].mean() / flat[0].mean()) == pytest.approx(-10.0, abs=0.1)
+
+
+def test_the_surface_path_repeats_a_bright_row_after_the_image_path_and_two_looks_double_a_point():
+    image = np.full((N_RANGES, N_BEAMS), 0.02, np.float32)
+    image[50] = 1.0
+    frame = frame_of(image)
+    out = run("multipath/surface_bounce", frame, reflection=0.5, depth_m=1.5)
+    r = frame.ranges_m
+    ghost = int(np.searchsorted(r, math.sqrt(r[50] ** 2 + 9.0)))
+    assert ghost > 51 and out[ghost].mean() ** 2 == pytest.approx(0.02 ** 2 + 0.25, rel=0.1)
+    doubled = run("motion_blur/two_look_average", point(), yaw_rate_deg_s=50.0, surge_m_s=0.0, interval_s=0.2)
+    shift = round(math.radians(10.0) / (math.radians(120.0) / (N_BEAMS - 1)))  # 8 beams
+    peaks = sorted(np.argsort(doubled[ROW])[-2:])
+    assert abs(peaks[1] - peaks[0] - shift) <= 1 and doubled[ROW, peaks].min() ** 2 > 0.4
+
+
+def test_the_s_curve_keeps_6_bits_and_the_mispointed_pattern_darkens_the_seabed():
+    flat = frame_of(np.linspace(0, 1, N_RANGES * N_BEAMS, dtype=np.float32).reshape(N_RANGES, N_BEAMS))
+    counts = apply_held_out([flat], "gamma_quantization/s_curve_6bit",
+                            {"gain": 1.0, "midpoint": 0.3, "steepness": 8.0}, 0)[0].intensity
+    assert counts.dtype == np.uint8 and len(np.unique(counts)) <= 64 and counts.min() == 0 and counts.max() == 255
+    lit = frame_of(np.full((N_RANGES, N_BEAMS), 0.5, np.float32))
+    on_axis = run("elevation_spread/mispointed_gaussian", lit, beamwidth_deg=10.0, mispoint_deg=0.0)
+    off_axis = run("elevation_spread/mispointed_gaussian", lit, beamwidth_deg=10.0, mispoint_deg=6.0)
+    assert (on_axis <= 0.5 + 1e-6).all() and np.argmax(on_axis[:, BEAM]) != np.argmax(off_axis[:, BEAM])
