@@ -612,7 +612,8 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
 
     The gain check (`gain_check`) replaces each selected effect in turn by a `GainPattern` fitted on top of the
     others: if a level and ramp alone do at least as well on held-out frames, or a pattern with a shape does
-    significantly better (the paired bootstrap's lower bound above 0), the effect is dropped (a "stand-in"). The
+    significantly better (the paired bootstrap's lower bound above 0), the effect is dropped (a "stand-in"), unless
+    the real frames are 8-bit counts that the effect gives and the pattern does not (`carries_counts`). The
     burden is on the gain pattern, so a true effect that the statistics tell from a gain only weakly (a multipath
     ghost on a seabed-filled scene) is kept.
 
