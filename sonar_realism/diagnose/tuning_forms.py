@@ -47,6 +47,12 @@ from sonar_realism.sim.effects import DEFAULT_ALTITUDE_M, DEFAULT_TILT_RAD, SOUN
 __all__ = ["TUNING"]  # filled by the registrations below
 
 
+# the platform's motion, drawn alike by every motion-blur form: yaw rate, surge and the time the sonar averages over
+YAW_RATE = Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s")
+SURGE = Param((0.2, 1.5), (0.0, 3.0), "surge_m_s")
+WINDOW = Param((0.05, 0.25), (0.02, 0.4), "integration_s")
+
+
 def _convolve_power(x: np.ndarray, kernel: np.ndarray, axis: int) -> np.ndarray:
     """Amplitude after convolving the power along `axis` (0: range, 1: beams) with a centred odd `kernel`."""
     power = (x * x).astype(np.float64)
@@ -166,9 +172,9 @@ def blurred_echo(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np
 
 
 @tuning_form("motion_blur", "gaussian_smear",
-             yaw_rate_deg_s=Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s"),
-             surge_m_s=Param((0.2, 1.5), (0.0, 3.0), "surge_m_s"),
-             integration_s=Param((0.05, 0.25), (0.02, 0.4), "integration_s"))
+             yaw_rate_deg_s=YAW_RATE,
+             surge_m_s=SURGE,
+             integration_s=WINDOW)
 def gaussian_smear(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
                    instrument: np.random.Generator) -> np.ndarray:
     """The sonar turns at `yaw_rate_deg_s` and moves at `surge_m_s` while it averages over a window whose
@@ -240,9 +246,9 @@ def two_slope(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
 
 # added after round 17: last, so every earlier form keeps its draws
 @tuning_form("motion_blur", "random_yaw_triangle",
-             yaw_rate_deg_s=Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s"),
+             yaw_rate_deg_s=YAW_RATE,
              rate_spread=Param((0.2, 0.6), (0.0, 1.0)),
-             integration_s=Param((0.05, 0.25), (0.02, 0.4), "integration_s"))
+             integration_s=WINDOW)
 def random_yaw_triangle(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
                         instrument: np.random.Generator) -> np.ndarray:
     """A platform that yaws back and forth: each ping turns at its own rate, `yaw_rate_deg_s` times a factor
@@ -362,9 +368,9 @@ def surface_bounce(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: 
 
 
 @tuning_form("motion_blur", "two_look_average",
-             yaw_rate_deg_s=Param((15.0, 50.0), (5.0, 90.0), "yaw_rate_deg_s"),
-             surge_m_s=Param((0.2, 1.5), (0.0, 3.0), "surge_m_s"),
-             interval_s=Param((0.05, 0.25), (0.02, 0.4), "integration_s"))
+             yaw_rate_deg_s=YAW_RATE,
+             surge_m_s=SURGE,
+             interval_s=WINDOW)
 def two_look_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
                      instrument: np.random.Generator) -> np.ndarray:
     """The sonar averages two pings `interval_s` apart (a ping-to-ping filter) while it turns at

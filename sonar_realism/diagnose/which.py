@@ -883,10 +883,11 @@ def greedy_select(ranked: Sequence[Solo], problem: SelectionProblem, config: Dia
     patterns = dict(zip([e.name for e in chosen], parallel_map(pattern_in_place_of, chosen, c.workers),
                         strict=True)) if c.gain_check else {}
     changed = False
+    real_counts = carries_counts(problem.target)
     for index, name in enumerate(list(patterns)):
         effect = next(e for e in chosen if e.name == name)  # as last refitted
         pattern, gap_gain, stats_gain = pattern_in_place_of(effect) if changed else patterns[name]
-        if carries_counts(problem.target) and carries_counts(current_stats) and not carries_counts(stats_gain):
+        if real_counts and carries_counts(current_stats) and not carries_counts(stats_gain):
             continue  # the real frames are 8-bit counts, as with the effect: no gain pattern in its place makes them
         # an effect fitted with its own physics off is a gain (a TVG curve without noise, per-ping beam gains
         # without haze) standing in for a gain error the catalogue lacks, however well it does that
