@@ -730,9 +730,27 @@ def test_the_multipath_search_also_starts_where_the_fit_split_shows_its_ghost():
     real = np.stack([apply_effects(f, [ghost], rng).normalized() for f in frames[1::2]])
     sim = np.stack([f.normalized() for f in frames[0::2]])
     ranges = frames[0].ranges_m
-    start = signature_starts(real, sim, ranges)["multipath"]
+    start = signature_starts(real, sim, ranges, np.degrees(frames[0].azimuths_rad))["multipath"]
     assert start.ghost_offset_m == pytest.approx(6.0, abs=1.5 * (ranges[1] - ranges[0]))
     assert start.reflection_coeff == make_effect("multipath").reflection_coeff  # only the offset is located
+
+
+def test_the_motion_blur_search_also_starts_as_two_looks_as_far_apart_as_the_fit_splits_copy_across_beams():
+    # A double image (two pings averaged while the sonar turned) was named beam_sidelobes on every scene of the
+    # third tuning group: the coarse grid over yaw x window missed a copy 8 beams out, and a continuous smear of
+    # that width fits it worse than sidelobes (#13, 2026-11-29). The fit split says where the copy is.
+    frames = sim_frames(24, seed=3)
+    bearings = np.degrees(frames[0].azimuths_rad)
+    step = float(bearings[1] - bearings[0])
+    sim = np.stack([f.normalized() for f in frames[0::2]])
+    for apart in (4, 7):
+        double = make_effect("motion_blur", yaw_rate_deg_s=40.0, surge_m_s=0.0, integration_s=apart * step / 40.0,
+                             looks=2)
+        rng = np.random.default_rng(0)
+        real = np.stack([apply_effects(f, [double], rng).normalized() for f in frames[1::2]])
+        start = signature_starts(real, sim, frames[0].ranges_m, bearings)["motion_blur"]
+        assert start.looks == 2
+        assert abs(start.yaw_rate_deg_s) * start.integration_s == pytest.approx(apart * step, abs=step)
 
 
 def test_lag_correlation_peaks_at_a_copy_of_each_frames_content():

@@ -380,6 +380,27 @@ def test_motion_blur_shears_along_bearing_growing_with_range() -> None:
     assert np.nonzero(smeared.any(axis=1))[0].tolist() == [80]  # rotation alone never mixes ranges
 
 
+def test_motion_blur_of_discrete_looks_repeats_an_echo_where_the_continuous_window_smears_it() -> None:
+    point = point_image()
+    frame = make_frame(point)
+    column = int(np.argmax(point.max(axis=0)))
+    step = math.degrees(frame.fov_rad) / (frame.n_beams - 1)
+    window = 10 * step / 60.0  # the sonar turns 10 beams during the window
+    continuous = MotionBlur(yaw_rate_deg_s=60.0, surge_m_s=0.0, integration_s=window).apply(point, frame, rng())
+    for looks in (0.0, 1.4):  # below 2 the window is continuous
+        same = MotionBlur(yaw_rate_deg_s=60.0, surge_m_s=0.0, integration_s=window, looks=looks)
+        np.testing.assert_array_equal(same.apply(point, frame, rng()), continuous)
+    double = MotionBlur(yaw_rate_deg_s=60.0, surge_m_s=0.0, integration_s=window, looks=2.0).apply(point, frame,
+                                                                                                   rng())
+    row = np.nonzero(point.any(axis=1))[0][0]
+    lit = np.nonzero(double[row] > 0.1 * double[row].max())[0]
+    assert lit.min() <= column - 4 and lit.max() >= column + 4  # two copies 10 beams apart, about the echo
+    assert double[row, column] < 0.1 * double[row].max()  # with nothing between them
+    assert (continuous[row, column - 3:column + 4] > 0).all()  # where the continuous window fills the band
+    total = (point ** 2).sum()
+    assert (double ** 2).sum() == pytest.approx(total, rel=0.02)  # averaging keeps the power
+
+
 def test_ring_down_touches_only_the_first_rows() -> None:
     base = np.full((N_RANGES, N_BEAMS), 0.2, np.float32)
     frame = make_frame(base)

@@ -174,7 +174,7 @@ def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: Diag
     real_halves = (real_fit[0::2].mean(axis=0), real_fit[1::2].mean(axis=0))
     terms = scene_term_starts(_images(fit_frames, "max"), scene) if scene is not None else {}
     names = [*names, *terms]
-    starts = signature_starts(real_fit, candidate_images[chosen], reference.ranges_m)
+    starts = signature_starts(real_fit, candidate_images[chosen], reference.ranges_m, bearings_deg)
     # the signature finds count on both splits: as many sim frames of the fit split as are held out
     counted_sim = [sim[i] for i in sim_fit_idx[:len(eval_frames)]] + eval_frames
     real_fit_ranges = np.stack([real[i].ranges_m for i in real_fit_idx[:config.real_frames]])

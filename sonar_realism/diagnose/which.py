@@ -70,6 +70,7 @@ from sonar_realism.sim.effects import (
     BeamSidelobes,
     Effect,
     Interference,
+    MotionBlur,
     Multipath,
     RingDown,
     apply_effects,
@@ -87,6 +88,8 @@ MEASURED_WEIGHT = 0.3  # of the strongest row's or beam's weight (sqrt of mean s
 MAX_SPOTS = 8
 # A ghost nearer than this many range bins is the grain's own correlation, not a copy of the scene.
 GHOST_MIN_LAG = 4
+# Nearer than this many beams, the excess correlation across the beams is the sidelobes' and the grain's.
+COPY_MIN_LAG_BEAMS = 3
 # An added-power band (a reflection inside the housing: the same delay every ping) is looked for beyond this share
 # of the range span: nearer in, a fixed band is the transducer's ring-down, which the catalogue has.
 BAND_MIN_START = 0.1
@@ -469,15 +472,36 @@ class SelectionProblem:
         return [self.signature_starts[name]] if name in self.signature_starts else []
 
 
-def signature_starts(real_fit: np.ndarray, sim_fit: np.ndarray, ranges_m: np.ndarray) -> dict[str, Effect]:
+def signature_starts(real_fit: np.ndarray, sim_fit: np.ndarray, ranges_m: np.ndarray, bearings_deg: np.ndarray
+                     ) -> dict[str, Effect]:
     """Starts located by an effect's signature on the fit split (real fit frames against the raw sim fit
     frames): a multipath whose ghost offset is the lag where the real frames' per-frame content correlates most
-    beyond the sim's, within the effect's offset bounds."""
+    beyond the sim's, within the effect's offset bounds; a motion blur of two looks as far apart as the lag across
+    the beams where it does so (a double image: two pings averaged while the sonar turned)."""
     low, high = (ghost_lag_bins(m, ranges_m) for m in Multipath.PARAM_BOUNDS["ghost_offset_m"])
     lag = ghost_lag_peak(range_lag_correlation(real_fit), range_lag_correlation(sim_fit),
                          max(GHOST_MIN_LAG, math.ceil(low)), int(high))
     offset_m = lag / ghost_lag_bins(1.0, ranges_m)
-    return {Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=offset_m)}
+    return {Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=offset_m),
+            MotionBlur.name: _two_looks_at_copy(real_fit, sim_fit, bearings_deg)}
+
+
+def _two_looks_at_copy(real_fit: np.ndarray, sim_fit: np.ndarray, bearings_deg: np.ndarray) -> MotionBlur:
+    """The catalogue's motion blur as two looks whose turn between them is the across-beam lag where the real
+    frames' per-frame content correlates most beyond the sim's: the coarse grid over yaw rate x window meets a
+    copy 16 beams out only by chance, and a continuous smear of that width fits a double image worse than
+    sidelobes do (the third tuning group's `two_look_average`)."""
+    start = make_effect(MotionBlur.name)
+    beam_step = abs(float(bearings_deg[-1] - bearings_deg[0])) / max(1, bearings_deg.size - 1)
+    yaw_high = MotionBlur.PARAM_BOUNDS["yaw_rate_deg_s"][1]
+    window_high = MotionBlur.PARAM_BOUNDS["integration_s"][1]
+    across = (np.swapaxes(real_fit, 1, 2), np.swapaxes(sim_fit, 1, 2))
+    lag = ghost_lag_peak(*(range_lag_correlation(images) for images in across), COPY_MIN_LAG_BEAMS,
+                         int(yaw_high * window_high / beam_step))
+    turn_deg = lag * beam_step
+    window = min(window_high, turn_deg / abs(start.yaw_rate_deg_s))
+    return dataclasses.replace(start, yaw_rate_deg_s=math.copysign(turn_deg / window, start.yaw_rate_deg_s),
+                               integration_s=window, looks=2.0)
 
 
 @dataclass(frozen=True)

@@ -585,32 +585,52 @@ class MotionBlur(Effect, order=40):
     the image, shifting each row's bearing by yaw_rate*2r/c (more at long range). The image is also the
     average over an integration window `integration_s` (receiver averaging, ping-to-ping filtering), during
     which the sonar turns by yaw_rate*integration_s (smear across beams) and moves `surge_m_s`*integration_s
-    (smear along range).
+    (smear along range). With `looks` of 2 or more (rounded) the window is not continuous but that many pings,
+    evenly spread over it, averaged (ping-to-ping averaging): an echo is repeated `looks` times across the beams
+    (a double image for 2), where the continuous window smears it into a band. Below 2 the window is continuous.
     """
 
     name: ClassVar[str] = "motion_blur"
     yaw_rate_deg_s: float = 10.0
     surge_m_s: float = 0.3
     integration_s: float = 0.05
+    looks: float = 0.0
+    # looks last: it only matters once the window spans a few beams
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
-        "yaw_rate_deg_s": (-60.0, 60.0), "surge_m_s": (0.0, 2.0), "integration_s": (0.0, 0.3)}
+        "yaw_rate_deg_s": (-60.0, 60.0), "surge_m_s": (0.0, 2.0), "integration_s": (0.0, 0.3), "looks": (0.0, 8.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
-        "yaw_rate_deg_s": (-720.0, 720.0), "surge_m_s": (-20.0, 20.0), "integration_s": (0.0, 10.0)}
+        "yaw_rate_deg_s": (-720.0, 720.0), "surge_m_s": (-20.0, 20.0), "integration_s": (0.0, 10.0),
+        "looks": (0.0, 64.0)}
 
     def apply(self, intensity: np.ndarray, frame: SonarImage, rng: np.random.Generator) -> np.ndarray:
         yaw_rate = math.radians(self.yaw_rate_deg_s)
         map_x, map_y = _shear_maps(frame.ranges_m.tobytes(), frame.azimuths_rad.tobytes(), yaw_rate)
         beam_step = frame.fov_rad / (frame.n_beams - 1) if frame.n_beams > 1 else 1.0
-        smear_beams = _fractional_box(abs(yaw_rate) * self.integration_s / beam_step)
-        smear_ranges = _fractional_box(abs(self.surge_m_s) * self.integration_s / _range_bin_m(frame))
+        width_beams = abs(yaw_rate) * self.integration_s / beam_step
+        width_ranges = abs(self.surge_m_s) * self.integration_s / _range_bin_m(frame)
+        looks = int(round(self.looks))
+        smear_beams, smear_ranges = _fractional_box(width_beams), _fractional_box(width_ranges)
         planes = _planes(intensity)
         out = np.empty_like(planes)
         for i, plane in enumerate(planes):
             power = cv2.remap(plane * plane, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-            if smear_beams.size > 1 or smear_ranges.size > 1:
+            if looks >= 2:
+                power = _average_looks(power, looks, width_beams, width_ranges)
+            elif smear_beams.size > 1 or smear_ranges.size > 1:
                 power = cv2.sepFilter2D(power, -1, smear_beams, smear_ranges, borderType=cv2.BORDER_REFLECT_101)
             out[i] = np.sqrt(np.maximum(power, 0))
         return out.reshape(intensity.shape)
+
+
+def _average_looks(power: np.ndarray, looks: int, width_beams: float, width_ranges: float) -> np.ndarray:
+    """The mean of `looks` copies of `power` spread evenly over a window of the given widths, centred as the
+    continuous window's box is (the edges reflected, as its filter does)."""
+    total = np.zeros_like(power)
+    for position in np.linspace(-0.5, 0.5, looks):
+        shift = np.float32([[1, 0, position * width_beams], [0, 1, position * width_ranges]])
+        total += cv2.warpAffine(power, shift, (power.shape[1], power.shape[0]), flags=cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REFLECT_101)
+    return total / np.float32(looks)
 
 
 @dataclass(frozen=True)
