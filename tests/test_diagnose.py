@@ -741,9 +741,11 @@ def test_the_motion_blur_search_also_starts_as_two_looks_as_far_apart_as_the_fit
     # that width fits it worse than sidelobes (#13, 2026-11-29). The fit split says where the copy is.
     frames = sim_frames(24, seed=3)
     bearings = np.degrees(frames[0].azimuths_rad)
-    step = float(bearings[1] - bearings[0])
+    step = float(bearings[-1] - bearings[0]) / (bearings.size - 1)  # the mean beam step, as the effect turns by
     sim = np.stack([f.normalized() for f in frames[0::2]])
-    for apart in (4, 7):
+    plain = np.stack([f.normalized() for f in frames[1::2]])
+    assert "motion_blur" not in signature_starts(plain, sim, frames[0].ranges_m, bearings)  # no copy, no start
+    for apart in (5, 12):
         double = make_effect("motion_blur", yaw_rate_deg_s=40.0, surge_m_s=0.0, integration_s=apart * step / 40.0,
                              looks=2)
         rng = np.random.default_rng(0)

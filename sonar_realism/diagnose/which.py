@@ -482,22 +482,30 @@ def signature_starts(real_fit: np.ndarray, sim_fit: np.ndarray, ranges_m: np.nda
     lag = ghost_lag_peak(range_lag_correlation(real_fit), range_lag_correlation(sim_fit),
                          max(GHOST_MIN_LAG, math.ceil(low)), int(high))
     offset_m = lag / ghost_lag_bins(1.0, ranges_m)
-    return {Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=offset_m),
-            MotionBlur.name: _two_looks_at_copy(real_fit, sim_fit, bearings_deg)}
+    starts: dict[str, Effect] = {
+        Multipath.name: dataclasses.replace(make_effect(Multipath.name), ghost_offset_m=offset_m)}
+    double = _two_looks_at_copy(real_fit, sim_fit, bearings_deg)
+    if double is not None:
+        starts[MotionBlur.name] = double
+    return starts
 
 
-def _two_looks_at_copy(real_fit: np.ndarray, sim_fit: np.ndarray, bearings_deg: np.ndarray) -> MotionBlur:
+def _two_looks_at_copy(real_fit: np.ndarray, sim_fit: np.ndarray, bearings_deg: np.ndarray) -> MotionBlur | None:
     """The catalogue's motion blur as two looks whose turn between them is the across-beam lag where the real
     frames' per-frame content correlates most beyond the sim's: the coarse grid over yaw rate x window meets a
     copy 16 beams out only by chance, and a continuous smear of that width fits a double image worse than
-    sidelobes do (the third tuning group's `two_look_average`)."""
+    sidelobes do (the third tuning group's `two_look_average`). None unless the excess peaks there as a ghost's
+    does along range (`check_ghost`): a smear's excess is broad, and a start of two looks led its search to a worse
+    optimum than the default's (tuning set 2, a Gaussian smear on the calibrated scene)."""
     start = make_effect(MotionBlur.name)
     beam_step = abs(float(bearings_deg[-1] - bearings_deg[0])) / max(1, bearings_deg.size - 1)
     yaw_high = MotionBlur.PARAM_BOUNDS["yaw_rate_deg_s"][1]
     window_high = MotionBlur.PARAM_BOUNDS["integration_s"][1]
     across = (np.swapaxes(real_fit, 1, 2), np.swapaxes(sim_fit, 1, 2))
-    lag = ghost_lag_peak(*(range_lag_correlation(images) for images in across), COPY_MIN_LAG_BEAMS,
-                         int(yaw_high * window_high / beam_step))
+    real_curve, sim_curve = (range_lag_correlation(images) for images in across)
+    lag = ghost_lag_peak(real_curve, sim_curve, COPY_MIN_LAG_BEAMS, int(yaw_high * window_high / beam_step))
+    if not check_ghost(real_curve, sim_curve, lag).confirmed:
+        return None
     turn_deg = lag * beam_step
     window = min(window_high, turn_deg / abs(start.yaw_rate_deg_s))
     return dataclasses.replace(start, yaw_rate_deg_s=math.copysign(turn_deg / window, start.yaw_rate_deg_s),
