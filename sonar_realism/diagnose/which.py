@@ -494,7 +494,7 @@ def signature_starts(real_fit: np.ndarray, sim_fit: np.ndarray, ranges_m: np.nda
 def _two_looks_at_copy(real_fit: np.ndarray, sim_fit: np.ndarray, bearings_deg: np.ndarray) -> MotionBlur | None:
     """The catalogue's motion blur as two looks whose turn between them is the across-beam lag where the real
     frames' per-frame content correlates most beyond the sim's: the coarse grid over yaw rate x window meets a
-    copy 16 beams out only by chance, and a continuous smear of that width fits a double image worse than
+    copy 8 beams out (of 128) only by chance, and a continuous smear of that width fits a double image worse than
     sidelobes do (the third tuning group's `two_look_average`). None unless the excess peaks there as a ghost's
     does along range (`check_ghost`): a smear's excess is broad, and a start of two looks led its search to a worse
     optimum than the default's (tuning set 2, a Gaussian smear on the calibrated scene)."""
@@ -600,8 +600,8 @@ def rank_effects(names: Sequence[str], problem: SelectionProblem, config: Diagno
         fits = [fit_effect(name, problem.fit_frames, problem.fit_target, problem.scale, start=start,
                            search=config.search, statistics=config.statistics, normalize=config.normalize)
                 for start in (problem.start(name), *problem.other_starts(name))]
-        best = min(fits, key=lambda fit: fit.fit_gap)
-        fit = Fit(best.effect, best.fit_gap, sum(fit.evaluations for fit in fits))
+        best = min(fits, key=lambda each: each.fit_gap)
+        fit = Fit(best.effect, best.fit_gap, sum(each.evaluations for each in fits))
         return (name, fit, *problem.holdout([fit.effect], None))
 
     fitted = parallel_map(solo, names, config.workers)
