@@ -60,10 +60,15 @@ def _convolve_power(x: np.ndarray, kernel: np.ndarray, axis: int) -> np.ndarray:
     return np.sqrt(np.maximum(spread, 0.0)).astype(np.float32)
 
 
+def _beam_step_rad(x: np.ndarray, frame: SonarImage) -> float:
+    """The mean bearing step between the beams of amplitude `x` (rad)."""
+    return frame.fov_rad / max(x.shape[1] - 1, 1)
+
+
 def _yaw_sheared_power(x: np.ndarray, frame: SonarImage, yaw_rate_rad_s: float) -> tuple[np.ndarray, float]:
     """The power of amplitude `x` with each row turned by the yaw during its two-way travel time (rows heard later
     are turned further), and the beam step (rad) it was measured in."""
-    step = (frame.azimuths_rad[-1] - frame.azimuths_rad[0]) / max(x.shape[1] - 1, 1)
+    step = _beam_step_rad(x, frame)
     shift = yaw_rate_rad_s * 2 * frame.ranges_m / SOUND_SPEED_MPS / step  # beams, per row
     cols = np.arange(x.shape[1], dtype=np.float32)[None, :] - shift[:, None].astype(np.float32)
     rows = np.repeat(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape[1], axis=1)
@@ -376,8 +381,7 @@ def two_look_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping
     """The sonar averages two pings `interval_s` apart (a ping-to-ping filter) while it turns at
     `yaw_rate_deg_s` and moves at `surge_m_s`: the power of the frame and of the frame turned and moved by that
     much, averaged (a double image, not a smear)."""
-    step = frame.fov_rad / max(x.shape[1] - 1, 1)
-    shift_beams = math.radians(p["yaw_rate_deg_s"]) * p["interval_s"] / step
+    shift_beams = math.radians(p["yaw_rate_deg_s"]) * p["interval_s"] / _beam_step_rad(x, frame)
     shift_rows = p["surge_m_s"] * p["interval_s"] / bin_m(frame)
     power = (x * x).astype(np.float32)
     moved = cv2.warpAffine(power, np.float32([[1, 0, shift_beams], [0, 1, -shift_rows]]),

@@ -610,13 +610,14 @@ class MotionBlur(Effect, order=40):
         width_ranges = abs(self.surge_m_s) * self.integration_s / _range_bin_m(frame)
         looks = int(round(self.looks))
         smear_beams, smear_ranges = _fractional_box(width_beams), _fractional_box(width_ranges)
+        smeared = smear_beams.size > 1 or smear_ranges.size > 1
         planes = _planes(intensity)
         out = np.empty_like(planes)
         for i, plane in enumerate(planes):
             power = cv2.remap(plane * plane, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
             if looks >= 2:
                 power = _average_looks(power, looks, width_beams, width_ranges)
-            elif smear_beams.size > 1 or smear_ranges.size > 1:
+            elif smeared:
                 power = cv2.sepFilter2D(power, -1, smear_beams, smear_ranges, borderType=cv2.BORDER_REFLECT_101)
             out[i] = np.sqrt(np.maximum(power, 0))
         return out.reshape(intensity.shape)
