@@ -173,3 +173,62 @@ def test_the_s_curve_keeps_6_bits_and_the_mispointed_pattern_darkens_the_seabed(
     on_axis = run("elevation_spread/mispointed_gaussian", lit, beamwidth_deg=10.0, mispoint_deg=0.0)
     off_axis = run("elevation_spread/mispointed_gaussian", lit, beamwidth_deg=10.0, mispoint_deg=6.0)
     assert (on_axis <= 0.5 + 1e-6).all() and np.argmax(on_axis[:, BEAM]) != np.argmax(off_axis[:, BEAM])
+
+
+def test_steered_beams_gather_from_further_across_the_fan_than_the_beam_on_axis():
+    image = np.full((N_RANGES, N_BEAMS), 0.02, np.float32)
+    image[ROW, BEAM] = image[ROW, 8] = 1.0  # one echo on axis, one 50 deg off it
+    out = run("beam_sidelobes/steered_broadening", frame_of(image), mainlobe_deg=2.0, plateau_db=-20.0)
+    assert out[ROW, 8 + 2] > out[ROW, BEAM + 2] and out[ROW + 5, BEAM] == pytest.approx(0.02, rel=0.05)
+
+
+def test_the_skewed_pulse_trails_after_its_peak_and_the_ringing_beats_near_the_sonar():
+    out = run("range_blur/skewed_laplace", point(), resolution_m=0.3, skew=3.0)
+    assert out[ROW + 3, BEAM] > out[ROW - 3, BEAM] > 0.02 and out[ROW, BEAM + 3] == pytest.approx(0.02, rel=0.05)
+    flat = frame_of(np.full((N_RANGES, N_BEAMS), 0.05, np.float32))
+    rung = run("ring_down/damped_ringing", flat, amplitude=0.8, decay_m=0.3, period_m=0.2, beam_spread=0.0)
+    near = rung[:12, BEAM]
+    assert near.max() > 0.5 and near.min() < 0.3 and rung[150:].mean() == pytest.approx(0.05, rel=1e-3)
+
+
+def test_the_side_wall_ghost_lands_further_out_and_round_in_bearing_and_recursion_trails_copies():
+    out = run("multipath/side_wall", point(), offset_m=1.0, lateral_deg=5.0, reflection=0.6)
+    rows = round(1.0 / (10.0 / (N_RANGES - 1)))
+    ghost = out[ROW + rows - 1:ROW + rows + 2].max(axis=0)
+    assert ghost.max() ** 2 > 0.1 and abs(int(np.argmax(ghost)) - BEAM) >= 2
+    trail = run("motion_blur/recursive_average", point(), yaw_rate_deg_s=60.0, surge_m_s=0.0,
+                ping_interval_s=0.1, memory=0.6)
+    shift = math.radians(6.0) / (math.radians(120.0) / (N_BEAMS - 1))  # 4.75 beams a ping
+    assert trail[ROW, BEAM] > trail[ROW, BEAM + round(shift)] > trail[ROW, BEAM + round(2 * shift)] > 0.02
+
+
+def test_the_pulse_train_lights_evenly_spaced_rows_and_the_black_level_keeps_32_counts():
+    dark = frame_of(np.zeros((N_RANGES, N_BEAMS), np.float32))
+    lit = [run("interference/pulse_train", dark, seed=s, count=3, spacing_m=1.0)[:, BEAM]
+           for s in range(4)]
+    rows = [np.flatnonzero((c > 0.2) & (c >= np.roll(c, 1)) & (c >= np.roll(c, -1))) for c in lit]
+    assert any(len(r) >= 2 and np.allclose(np.diff(r), 1.0 / (10.0 / (N_RANGES - 1)), atol=1.5) for r in rows)
+    ramp = frame_of(np.linspace(0, 1, N_RANGES * N_BEAMS, dtype=np.float32).reshape(N_RANGES, N_BEAMS))
+    counts = apply_held_out([ramp], "gamma_quantization/black_level_5bit",
+                            {"gain": 1.0, "black": 0.1, "gamma": 0.7}, 0)[0].intensity
+    assert len(np.unique(counts)) == 32 and (counts.reshape(-1)[: N_RANGES * N_BEAMS // 12] == 0).all()
+
+
+def test_nakagami_draws_share_beams_not_ranges_and_the_agc_floor_moves_from_ping_to_ping():
+    flat = frame_of(np.full((N_RANGES, N_BEAMS), 0.5, np.float32))
+    out = run("speckle/nakagami_beams", flat, shape_m=0.8, spread_beams=2.0) ** 2
+    across = np.corrcoef(out[:, :-1].ravel(), out[:, 1:].ravel())[0, 1]
+    along = np.corrcoef(out[:-1].ravel(), out[1:].ravel())[0, 1]
+    assert across > 0.3 and abs(along) < 0.05 and out.mean() == pytest.approx(0.25, rel=0.05)
+    dark = frame_of(np.zeros((N_RANGES, N_BEAMS), np.float32))
+    floors = [run("tvg_noise/agc_floor", dark, seed=s, exponent=1.0, jitter=0.4)[-20:].mean() for s in range(4)]
+    assert max(floors) > 1.2 * min(floors)
+    rising = run("tvg_noise/agc_floor", dark, exponent=1.0)
+    assert rising[-20:].mean() > 5 * rising[:20].mean()
+
+
+def test_the_lopsided_pattern_darkens_the_seabed_more_on_its_narrow_side():
+    lit = frame_of(np.full((N_RANGES, N_BEAMS), 0.5, np.float32))
+    wider_above = run("elevation_spread/lopsided_vertical", lit, beamwidth_deg=10.0, lopsided=0.5)
+    wider_below = run("elevation_spread/lopsided_vertical", lit, beamwidth_deg=10.0, lopsided=-0.5)
+    assert (wider_above <= 0.5 + 1e-6).all() and not np.allclose(wider_above, wider_below)

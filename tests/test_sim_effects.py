@@ -176,6 +176,21 @@ def test_complex_gaussian_draws_are_independent_standard_normals() -> None:
         assert (power > 2 * x).mean() == pytest.approx(math.exp(-x), rel=0.05)
 
 
+def test_speckle_of_several_looks_is_lighter_than_rayleigh_and_one_look_keeps_its_draws() -> None:
+    flat = np.full((400, 200), 0.5, np.float32)
+    frame = make_frame(flat)
+    for looks in (1.5, 2.0, 3.7):
+        out = Speckle(shape_nu=1e6, grain_beams=0.0, grain_ranges=0.0, looks=looks).apply(flat, frame, rng())
+        power = out.astype(np.float64) ** 2
+        assert power.mean() == pytest.approx(0.25, rel=0.03)  # power kept
+        assert power.var() / power.mean() ** 2 == pytest.approx(1.0 / looks, rel=0.08)  # SI = 1 / looks
+    one = Speckle(shape_nu=3.0, looks=1.0)
+    source = rng(5)  # one look: the field, then the texture, as before looks existed
+    expected = flat * np.sqrt(one._smoothed_power(*effects_module._complex_gaussian(source, flat.shape))
+                              * effects_module._gamma_texture(source, 3.0, flat.shape))
+    np.testing.assert_array_equal(one.apply(flat, frame, rng(5)), expected)
+
+
 def test_speckle_grain_is_anisotropic_as_configured() -> None:
     flat = np.full((300, 300), 0.5, np.float32)
     out = Speckle(shape_nu=1e6, grain_beams=2.0, grain_ranges=0.4).apply(flat, make_frame(flat), rng()) ** 2

@@ -31,6 +31,21 @@ A third group (added in round 20, when the first two no longer showed failures),
 | motion_blur        | two pings averaged while turning and moving: a double image, not a smear                 |
 | interference       | unmatched sweeps: broad bands across the fan with their own speckle                     |
 | gamma_quantization | a logistic S-curve kept to 6 bits                                                       |
+
+A fourth group (added in round 23, written before any was run, from physics the first three do not use):
+
+| effect             | here                                                                                    |
+|--------------------|-----------------------------------------------------------------------------------------|
+| speckle            | gamma (Nakagami-m) draws cell by cell, shared across neighbouring beams only            |
+| beam_sidelobes     | beams wider off axis (1/cos), a mainlobe on a flat plateau                               |
+| range_blur         | a cusped pulse: exponential rise, a slower exponential decay                             |
+| tvg_noise          | a noise floor rising as a power of range, its level set anew every ping (an AGC)         |
+| elevation_spread   | a vertical pattern wider on one side of its axis than the other                          |
+| multipath          | a wall to one side: the ghost further out and round in bearing                           |
+| motion_blur        | a running (exponential) average of the pings while turning and moving                    |
+| ring_down          | a damped resonator: an exponential leak that beats along range                           |
+| interference       | a faster sonar's pulse train: evenly spaced arcs every ping                              |
+| gamma_quantization | a black level, a power law, 5 bits                                                       |
 """
 
 from __future__ import annotations
@@ -422,3 +437,185 @@ def s_curve_6bit(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np
     hi = 1.0 / (1.0 + math.exp(-p["steepness"] * (1.0 - p["midpoint"])))
     levels = np.round(63 * (s - lo) / (hi - lo))
     return np.round(levels * 255.0 / 63.0).astype(np.uint8)
+
+
+# Added in round 23 (a fourth group, written before any was run, from physics the first three do not use): last, so
+# every earlier form keeps its draws.
+@tuning_form("speckle", "nakagami_beams",
+             shape_m=Param((0.7, 2.0), (0.4, 4.0)),
+             spread_beams=Param((0.5, 2.5), (0.3, 4.0), "grain_beams"))
+def nakagami_beams(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                   instrument: np.random.Generator) -> np.ndarray:
+    """Intensity fluctuations drawn cell by cell from a gamma law of shape `shape_m` (Nakagami-m amplitude:
+    heavier than Rayleigh below 1, lighter above), then shared between neighbouring beams by the beamformer's
+    overlap (a triangle `spread_beams` beams either side); none along range."""
+    draws = ping.gamma(p["shape_m"], 1.0 / p["shape_m"], x.shape)
+    half = max(p["spread_beams"], 0.3)
+    taps = np.arange(-math.ceil(half), math.ceil(half) + 1, dtype=np.float64)
+    kernel = np.maximum(1.0 - np.abs(taps) / (half + 1.0), 0.0)
+    shared = fft_convolve(draws, kernel / kernel.sum(), 1, kernel.size // 2)
+    shared /= max(float(shared.mean()), 1e-12)
+    return (x * np.sqrt(np.maximum(shared, 0.0))).astype(np.float32)
+
+
+@tuning_form("beam_sidelobes", "steered_broadening",
+             mainlobe_deg=Param((0.4, 2.0), (0.2, 3.0), "mainlobe_deg"),
+             plateau_db=Param((-26.0, -14.0), (-34.0, -10.0), "sidelobe_db"),
+             plateau_deg=Param((3.0, 10.0), (1.5, 20.0)))
+def steered_broadening(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                       instrument: np.random.Generator) -> np.ndarray:
+    """A beam steered off the array's axis by theta is wider by 1/cos(theta): each beam's power pattern is a
+    Gaussian mainlobe (-3 dB width `mainlobe_deg` on axis) on a flat plateau `plateau_db` down reaching
+    `plateau_deg` either side, both stretched by 1/cos(theta). Off-axis beams gather from further across."""
+    theta = frame.azimuths_rad
+    offsets = np.degrees(np.sin(theta)[None, :] - np.sin(theta)[:, None])  # row: output beam, column: source
+    stretch = 1.0 / np.maximum(np.cos(theta), 0.2)[:, None]
+    sigma = p["mainlobe_deg"] / 2.355 * stretch
+    main = np.exp(-0.5 * (offsets / sigma) ** 2)
+    plateau = 10 ** (p["plateau_db"] / 10) * (np.abs(offsets) <= p["plateau_deg"] * stretch)
+    weights = np.maximum(main, plateau)
+    weights /= weights.sum(axis=1, keepdims=True)
+    power = (x * x).astype(np.float64)
+    return np.sqrt(np.maximum(power @ weights.T, 0.0)).astype(np.float32)
+
+
+@tuning_form("range_blur", "skewed_laplace",
+             resolution_m=Param((0.03, 0.25), (0.005, 0.5), "resolution_m"),
+             skew=Param((1.5, 3.0), (1.0, 5.0)))
+def skewed_laplace(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                   instrument: np.random.Generator) -> np.ndarray:
+    """A pulse with a sharp rise and a slower decay: the power PSF along range falls exponentially both ways
+    from its peak, `skew` times slower after it than before, with a full width at half maximum of
+    `resolution_m` (a cusp, no flat top, no sidelobes)."""
+    fwhm = max(p["resolution_m"] / bin_m(frame), 0.3)
+    before = fwhm / (math.log(2) * (1.0 + p["skew"]))
+    after = p["skew"] * before
+    half = int(min(math.ceil(8 * after), x.shape[0] - 1))
+    d = np.arange(-half, half + 1, dtype=np.float64)
+    kernel = np.where(d >= 0, np.exp(-d / after), np.exp(d / before))
+    # the convolution puts power of row r - d on row r: a positive offset is heard after the peak
+    return _convolve_power(x, kernel, axis=0)
+
+
+@tuning_form("tvg_noise", "agc_floor",
+             noise_level=Param((0.04, 0.15), (0.01, 0.4), "noise_amplitude"),
+             exponent=Param((0.5, 2.0), (0.0, 3.0)),
+             jitter=Param((0.1, 0.4), (0.0, 0.7)))
+def agc_floor(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+              instrument: np.random.Generator) -> np.ndarray:
+    """An automatic gain that sets each ping's noise floor anew: complex receiver noise whose amplitude rises as
+    range^`exponent` to `noise_level` at the far end, times a per-ping log-normal factor (log-rms `jitter`);
+    noise and echo add as fields."""
+    r = frame.ranges_m[:, None]
+    level = p["noise_level"] * (r / r[-1]) ** p["exponent"]
+    level = level * math.exp(p["jitter"] * float(ping.standard_normal()) - 0.5 * p["jitter"] ** 2)
+    noise = (ping.standard_normal(x.shape) + 1j * ping.standard_normal(x.shape)) / math.sqrt(2)
+    return np.abs(x + level * noise).astype(np.float32)
+
+
+@tuning_form("elevation_spread", "lopsided_vertical",
+             beamwidth_deg=Param((8.0, 30.0), (4.0, 50.0), "beamwidth_deg"),
+             lopsided=Param((-0.5, 0.5), (-0.8, 0.8)))
+def lopsided_vertical(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                      instrument: np.random.Generator) -> np.ndarray:
+    """A vertical pattern wider above its axis than below (or the other way): half power at
+    `beamwidth_deg`/2 x (1 + `lopsided`) above and x (1 - `lopsided`) below, Gaussian on each side, two-way;
+    every pixel weighted by it at the elevation a flat seabed at the frame's altitude and tilt is seen at."""
+    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
+    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
+    phi = seabed_elevation(frame, altitude, tilt)
+    half = math.radians(p["beamwidth_deg"]) / 2
+    width = np.where(phi >= 0, half * (1.0 + p["lopsided"]), half * (1.0 - p["lopsided"]))
+    return (x * np.exp(0.5 * math.log(0.5) * (phi / np.maximum(width, 1e-3)) ** 2)).astype(np.float32)
+
+
+@tuning_form("multipath", "side_wall",
+             reflection=Param((0.35, 0.75), (0.2, 0.95), "reflection_coeff"),
+             offset_m=Param((1.0, 4.0), (0.4, 8.0), "ghost_offset_m"),
+             lateral_deg=Param((2.0, 8.0), (1.0, 15.0)))
+def side_wall(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+              instrument: np.random.Generator) -> np.ndarray:
+    """A wall or hull to one side: the frame comes back again by a path `offset_m` longer and `lateral_deg`
+    round in bearing (the side the wall is on drawn once for the sensor), times `reflection`^2 in power."""
+    rows = p["offset_m"] / bin_m(frame)
+    side = 1.0 if instrument.random() < 0.5 else -1.0
+    beams = side * math.radians(p["lateral_deg"]) / _beam_step_rad(x, frame)
+    power = (x * x).astype(np.float32)
+    ghost = cv2.warpAffine(power, np.float32([[1, 0, beams], [0, 1, rows]]), (x.shape[1], x.shape[0]),
+                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return np.sqrt(power + p["reflection"] ** 2 * ghost).astype(np.float32)
+
+
+@tuning_form("motion_blur", "recursive_average",
+             yaw_rate_deg_s=YAW_RATE,
+             surge_m_s=SURGE,
+             ping_interval_s=Param((0.04, 0.12), (0.02, 0.2)),
+             memory=Param((0.3, 0.7), (0.1, 0.85)))
+def recursive_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                      instrument: np.random.Generator) -> np.ndarray:
+    """A display that keeps a running (exponential) average of the pings while the sonar turns at
+    `yaw_rate_deg_s` and moves at `surge_m_s`: the frame plus its copies one, two, ... pings back (each
+    `ping_interval_s` apart), weighted by `memory`^k and moved as far as the platform went since then."""
+    step_beams = math.radians(p["yaw_rate_deg_s"]) * p["ping_interval_s"] / _beam_step_rad(x, frame)
+    step_rows = p["surge_m_s"] * p["ping_interval_s"] / bin_m(frame)
+    power = (x * x).astype(np.float32)
+    total = np.zeros_like(power)
+    weights = 0.0
+    k = 0
+    while p["memory"] ** k >= 0.02:
+        w = p["memory"] ** k
+        moved = cv2.warpAffine(power, np.float32([[1, 0, k * step_beams], [0, 1, -k * step_rows]]),
+                               (x.shape[1], x.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+        total += w * moved
+        weights += w
+        k += 1
+    return np.sqrt(total / weights).astype(np.float32)
+
+
+@tuning_form("ring_down", "damped_ringing", strength="amplitude",
+             amplitude=Param((0.15, 0.8), (0.05, 1.5), "amplitude"),
+             decay_m=Param((0.03, 0.2), (0.01, 0.4), "decay_m"),
+             period_m=Param((0.02, 0.08), (0.01, 0.15)),
+             beam_spread=Param((0.0, 0.3), (0.0, 0.6), "beam_ripple"))
+def damped_ringing(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                   instrument: np.random.Generator) -> np.ndarray:
+    """The transducer rings after the transmit pulse like a damped resonator: near the sonar a leak whose
+    amplitude falls as exp(-d / `decay_m`) and beats with a period `period_m` in range (raised cosine), each
+    beam's leak scaled by a fixed factor of spread `beam_spread`; leak and echo add in power."""
+    d = (frame.ranges_m - frame.ranges_m[0])[:, None]
+    leak = p["amplitude"] * np.exp(-d / p["decay_m"]) * (0.5 + 0.5 * np.cos(2 * math.pi * d / p["period_m"]))
+    beams = np.maximum(1.0 + p["beam_spread"] * instrument.standard_normal(x.shape[1]), 0.0)[None, :]
+    return np.sqrt(x * x + (leak * beams) ** 2).astype(np.float32)
+
+
+@tuning_form("interference", "pulse_train",
+             count=Param((2.0, 5.0), (1.0, 8.0), integer=True),
+             spacing_m=Param((0.5, 2.0), (0.2, 4.0)),
+             amplitude=Param((0.3, 0.9), (0.1, 1.5), "amplitude"),
+             thickness_m=Param((0.03, 0.15), (0.01, 0.4), "thickness_m"))
+def pulse_train(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                instrument: np.random.Generator) -> np.ndarray:
+    """Another sonar pinging several times faster than ours: in every one of our pings a train of `count` arcs
+    `spacing_m` apart from a random range (the train's start moves from ping to ping: the two are not in step),
+    each Gaussian of FWHM `thickness_m`, power `amplitude`^2, across the whole fan."""
+    power = (x * x).astype(np.float64)
+    r = frame.ranges_m
+    sigma = max(p["thickness_m"] / 2.355, 1e-3)
+    first = ping.uniform(r[0], r[-1])
+    for k in range(int(p["count"])):
+        along = np.exp(-0.5 * ((r - first - k * p["spacing_m"]) / sigma) ** 2)
+        power += p["amplitude"] ** 2 * along[:, None]
+    return np.sqrt(power).astype(np.float32)
+
+
+@tuning_form("gamma_quantization", "black_level_5bit",
+             gain=Param((0.8, 3.0), (0.4, 6.0), "gain"),
+             black=Param((0.02, 0.1), (0.0, 0.2)),
+             gamma=Param((0.4, 1.0), (0.25, 1.2), "gamma"))
+def black_level_5bit(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.random.Generator,
+                     instrument: np.random.Generator) -> np.ndarray:
+    """A display with a black level: after a `gain`, inputs below `black` are black, the rest rescaled to 0..1,
+    raised to `gamma` and kept to 5 bits (32 levels written as 8-bit counts)."""
+    u = np.clip(p["gain"] * x, 0.0, 1.0)
+    v = np.clip((u - p["black"]) / (1.0 - p["black"]), 0.0, 1.0) ** p["gamma"]
+    return np.round(np.round(31 * v) * 255.0 / 31.0).astype(np.uint8)

@@ -141,6 +141,17 @@ def _standard_normals(rng: np.random.Generator, shape: tuple[int, ...]) -> np.nd
     return np.concatenate([re.ravel(), im.ravel()])[:size].reshape(shape)
 
 
+def last_look_weight(looks: float) -> float:
+    """The weight w in [0, 1] of the last of ceil(`looks`) equal, independent speckle patterns that makes their
+    weighted mean's effective number of looks, (sum w)^2 / sum w^2, equal `looks` (1 when it is whole)."""
+    whole = math.ceil(looks - 1e-9)
+    if whole <= 1 or abs(looks - whole) < 1e-9:
+        return 1.0
+    # (whole - 1 + w)^2 = looks (whole - 1 + w^2), the root in [0, 1]
+    a, b, c = 1.0 - looks, 2.0 * (whole - 1), (whole - 1) * (whole - 1 - looks)
+    return float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))
+
+
 def _gamma_texture(rng: np.random.Generator, shape_nu: float, shape: tuple[int, ...]) -> np.ndarray:
     """Gamma(nu, 1/nu) float32 (unit mean). Above nu = 2 the Wilson-Hilferty cube of a normal matches the gamma's
     mean, variance and 1-99 % quantiles to < 1 % at a third of the cost of exact gamma draws."""
@@ -223,6 +234,10 @@ class Speckle(Effect, order=30):
     `grain_beams` x `grain_ranges` pixels (sigma), the resolution cell, so the grain is anisotropic like a real
     FLS (about two beams across, one bin along range). Mean power is preserved.
 
+    A sensor that averages intensities before it reports them (sub-bands, overlapping beams, several pings) shows
+    speckle lighter than Rayleigh: `looks` independent speckle patterns averaged (SI = 1/looks under the texture).
+    A fraction of a look is the last pattern weighted down so the average has exactly that many looks' SI.
+
     Speckle is deterministic given the scatterers: for a static scene it is frozen. A frame whose meta carries
     `speckle_seed` (the simulator derives it from scene seed + pose) draws the field from that seed, so the same
     scene and pose give the same speckle and a moving sonar decorrelates it; otherwise `rng` is used.
@@ -232,10 +247,12 @@ class Speckle(Effect, order=30):
     shape_nu: float = 28.2  # calibrated
     grain_beams: float = 1.91  # calibrated
     grain_ranges: float = 0.6
+    looks: float = 1.0
+    # looks last: a search first matches the grain, then how much lighter than Rayleigh it is
     PARAM_BOUNDS: ClassVar[dict[str, tuple[float, float]]] = {
-        "shape_nu": (0.5, 50.0), "grain_beams": (0.3, 4.0), "grain_ranges": (0.3, 4.0)}
+        "shape_nu": (0.5, 50.0), "grain_beams": (0.3, 4.0), "grain_ranges": (0.3, 4.0), "looks": (1.0, 8.0)}
     VALID_RANGE: ClassVar[dict[str, tuple[float, float]]] = {
-        "shape_nu": (0.05, 1e6), "grain_beams": (0.0, 50.0), "grain_ranges": (0.0, 50.0)}
+        "shape_nu": (0.05, 1e6), "grain_beams": (0.0, 50.0), "grain_ranges": (0.0, 50.0), "looks": (1.0, 64.0)}
     CALIBRATED: ClassVar[tuple[str, ...]] = ("shape_nu", "grain_beams", "grain_ranges")
     LOG_SCALE: ClassVar[frozenset[str]] = frozenset({"shape_nu"})
 
@@ -249,10 +266,24 @@ class Speckle(Effect, order=30):
         out = np.empty_like(planes)
         for i, plane in enumerate(planes):
             power = self._smoothed_power(*_complex_gaussian(source, plane.shape))
-            if self.shape_nu < self.RAYLEIGH_LIMIT_NU:
-                power *= _gamma_texture(source, self.shape_nu, plane.shape)
+            texture = (_gamma_texture(source, self.shape_nu, plane.shape)
+                       if self.shape_nu < self.RAYLEIGH_LIMIT_NU else None)
+            if self.looks > 1.0:  # drawn after the texture: one look keeps the draws it always had
+                power = self._averaged_looks(power, source, plane.shape)
+            if texture is not None:
+                power *= texture
             out[i] = plane * np.sqrt(power)
         return out.reshape(intensity.shape)
+
+    def _averaged_looks(self, first: np.ndarray, source: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """The weighted mean of `first` and further independent patterns: ceil(looks) of them, the last weighted
+        by `last_look_weight` so the mean's SI is 1/looks."""
+        whole = math.ceil(self.looks - 1e-9)
+        weights = [1.0] * (whole - 1) + [last_look_weight(self.looks)]
+        total = first.copy()
+        for weight in weights[1:]:
+            total += np.float32(weight) * self._smoothed_power(*_complex_gaussian(source, shape))
+        return total / np.float32(sum(weights))
 
     def _smoothed_power(self, re: np.ndarray, im: np.ndarray) -> np.ndarray:
         """|re + i im|^2 of the cell-filtered complex field, scaled to unit mean."""
