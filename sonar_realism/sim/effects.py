@@ -141,15 +141,15 @@ def _standard_normals(rng: np.random.Generator, shape: tuple[int, ...]) -> np.nd
     return np.concatenate([re.ravel(), im.ravel()])[:size].reshape(shape)
 
 
-def last_look_weight(looks: float) -> float:
-    """The weight w in [0, 1] of the last of ceil(`looks`) equal, independent speckle patterns that makes their
-    weighted mean's effective number of looks, (sum w)^2 / sum w^2, equal `looks` (1 when it is whole)."""
-    whole = math.ceil(looks - 1e-9)
-    if whole <= 1 or abs(looks - whole) < 1e-9:
-        return 1.0
+def look_weights(looks: float) -> list[float]:
+    """Weights of ceil(`looks`) equal, independent speckle patterns whose weighted mean has `looks` effective looks,
+    (sum w)^2 / sum w^2: 1 for every pattern but the last, whose weight w in [0, 1] takes up the fraction."""
+    whole = max(1, math.ceil(looks - 1e-9))
+    if abs(looks - whole) < 1e-9:
+        return [1.0] * whole
     # (whole - 1 + w)^2 = looks (whole - 1 + w^2), the root in [0, 1]
     a, b, c = 1.0 - looks, 2.0 * (whole - 1), (whole - 1) * (whole - 1 - looks)
-    return float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))
+    return [1.0] * (whole - 1) + [float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))]
 
 
 def _gamma_texture(rng: np.random.Generator, shape_nu: float, shape: tuple[int, ...]) -> np.ndarray:
@@ -276,14 +276,11 @@ class Speckle(Effect, order=30):
         return out.reshape(intensity.shape)
 
     def _averaged_looks(self, first: np.ndarray, source: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-        """The weighted mean of `first` and further independent patterns: ceil(looks) of them, the last weighted
-        by `last_look_weight` so the mean's SI is 1/looks."""
-        whole = math.ceil(self.looks - 1e-9)
-        weights = [1.0] * (whole - 1) + [last_look_weight(self.looks)]
-        total = first.copy()
+        """The weighted mean (`look_weights`) of `first` and further independent patterns: SI 1/looks."""
+        weights = look_weights(self.looks)
         for weight in weights[1:]:
-            total += np.float32(weight) * self._smoothed_power(*_complex_gaussian(source, shape))
-        return total / np.float32(sum(weights))
+            first += np.float32(weight) * self._smoothed_power(*_complex_gaussian(source, shape))
+        return first / np.float32(sum(weights))
 
     def _smoothed_power(self, re: np.ndarray, im: np.ndarray) -> np.ndarray:
         """|re + i im|^2 of the cell-filtered complex field, scaled to unit mean."""
