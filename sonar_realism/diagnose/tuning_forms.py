@@ -80,6 +80,18 @@ def _beam_step_rad(x: np.ndarray, frame: SonarImage) -> float:
     return frame.fov_rad / max(x.shape[1] - 1, 1)
 
 
+def _flat_seabed_elevation(frame: SonarImage) -> np.ndarray:
+    """The elevation (rad) at which a flat seabed at the frame's altitude and tilt is seen, per (range, beam)."""
+    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
+    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
+    return seabed_elevation(frame, altitude, tilt)
+
+
+def _complex_noise(ping: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Circular complex Gaussian noise of unit power (real part drawn first)."""
+    return (ping.standard_normal(shape) + 1j * ping.standard_normal(shape)) / math.sqrt(2)
+
+
 def _yaw_sheared_power(x: np.ndarray, frame: SonarImage, yaw_rate_rad_s: float) -> tuple[np.ndarray, float]:
     """The power of amplitude `x` with each row turned by the yaw during its two-way travel time (rows heard later
     are turned further), and the beam step (rad) it was measured in."""
@@ -162,10 +174,7 @@ def cos_power(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
     """Two-way vertical pattern cos^m(elevation off the beam axis), m set so the power is half at
     +-`beamwidth_deg`/2, never below `floor_db` (amplitude): every pixel weighted by the pattern at the elevation
     a flat seabed at the frame's altitude and tilt is seen at."""
-    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
-    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
-    # out of the seabed's reach the elevation is -90 deg: the pattern's floor
-    phi = seabed_elevation(frame, altitude, tilt)
+    phi = _flat_seabed_elevation(frame)  # out of the seabed's reach -90 deg: the pattern's floor
     half = math.radians(p["beamwidth_deg"]) / 2
     m = math.log(0.5) / (2 * math.log(math.cos(half)))
     weight = np.maximum(np.cos(phi) ** m, 10 ** (p["floor_db"] / 20))
@@ -350,7 +359,7 @@ def noise_before_gain(x: np.ndarray, frame: SonarImage, p: dict[str, float], pin
     r = frame.ranges_m[:, None]
     echo = x * 10 ** (-p["absorption_db_per_m"] * (r - r[0]) / 20)
     level = p["noise_level"] * r / r[-1]
-    noise = (ping.standard_normal(x.shape) + 1j * ping.standard_normal(x.shape)) / math.sqrt(2)
+    noise = _complex_noise(ping, x.shape)
     return np.abs(echo + level * noise).astype(np.float32)
 
 
@@ -362,9 +371,7 @@ def mispointed_gaussian(x: np.ndarray, frame: SonarImage, p: dict[str, float], p
     """A Gaussian two-way vertical pattern (half power at +-`beamwidth_deg`/2) whose axis points
     `mispoint_deg` off the nominal tilt (a transducer mounted a few degrees off), no floor: every pixel weighted by
     it at the elevation a flat seabed at the frame's altitude and tilt is seen at."""
-    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
-    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
-    phi = seabed_elevation(frame, altitude, tilt) - math.radians(p["mispoint_deg"])
+    phi = _flat_seabed_elevation(frame) - math.radians(p["mispoint_deg"])
     half = math.radians(p["beamwidth_deg"]) / 2
     return (x * np.exp(0.5 * math.log(0.5) * (phi / half) ** 2)).astype(np.float32)
 
@@ -509,7 +516,7 @@ def agc_floor(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
     r = frame.ranges_m[:, None]
     level = p["noise_level"] * (r / r[-1]) ** p["exponent"]
     level = level * math.exp(p["jitter"] * float(ping.standard_normal()) - 0.5 * p["jitter"] ** 2)
-    noise = (ping.standard_normal(x.shape) + 1j * ping.standard_normal(x.shape)) / math.sqrt(2)
+    noise = _complex_noise(ping, x.shape)
     return np.abs(x + level * noise).astype(np.float32)
 
 
@@ -521,9 +528,7 @@ def lopsided_vertical(x: np.ndarray, frame: SonarImage, p: dict[str, float], pin
     """A vertical pattern wider above its axis than below (or the other way): half power at
     `beamwidth_deg`/2 x (1 + `lopsided`) above and x (1 - `lopsided`) below, Gaussian on each side, two-way;
     every pixel weighted by it at the elevation a flat seabed at the frame's altitude and tilt is seen at."""
-    altitude = float(frame.meta.get("sonar_altitude_m", DEFAULT_ALTITUDE_M))
-    tilt = float(frame.meta.get("sonar_tilt_rad", DEFAULT_TILT_RAD))
-    phi = seabed_elevation(frame, altitude, tilt)
+    phi = _flat_seabed_elevation(frame)
     half = math.radians(p["beamwidth_deg"]) / 2
     width = np.where(phi >= 0, half * (1.0 + p["lopsided"]), half * (1.0 - p["lopsided"]))
     return (x * np.exp(0.5 * math.log(0.5) * (phi / np.maximum(width, 1e-3)) ** 2)).astype(np.float32)
