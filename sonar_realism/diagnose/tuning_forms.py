@@ -92,6 +92,12 @@ def _complex_noise(ping: np.random.Generator, shape: tuple[int, ...]) -> np.ndar
     return (ping.standard_normal(shape) + 1j * ping.standard_normal(shape)) / math.sqrt(2)
 
 
+def _moved(power: np.ndarray, beams: float, rows: float, border: int = cv2.BORDER_REFLECT_101) -> np.ndarray:
+    """`power` moved `beams` across the fan and `rows` further out in range (fractions interpolated)."""
+    return cv2.warpAffine(power, np.float32([[1, 0, beams], [0, 1, rows]]), (power.shape[1], power.shape[0]),
+                          flags=cv2.INTER_LINEAR, borderMode=border)
+
+
 def _yaw_sheared_power(x: np.ndarray, frame: SonarImage, yaw_rate_rad_s: float) -> tuple[np.ndarray, float]:
     """The power of amplitude `x` with each row turned by the yaw during its two-way travel time (rows heard later
     are turned further), and the beam step (rad) it was measured in."""
@@ -406,9 +412,7 @@ def two_look_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping
     shift_beams = math.radians(p["yaw_rate_deg_s"]) * p["interval_s"] / _beam_step_rad(x, frame)
     shift_rows = p["surge_m_s"] * p["interval_s"] / bin_m(frame)
     power = (x * x).astype(np.float32)
-    moved = cv2.warpAffine(power, np.float32([[1, 0, shift_beams], [0, 1, -shift_rows]]),
-                           (x.shape[1], x.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-    return np.sqrt(0.5 * (power + moved)).astype(np.float32)
+    return np.sqrt(0.5 * (power + _moved(power, shift_beams, -shift_rows))).astype(np.float32)
 
 
 @tuning_form("interference", "thick_sweeps",
@@ -546,8 +550,7 @@ def side_wall(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
     side = 1.0 if instrument.random() < 0.5 else -1.0
     beams = side * math.radians(p["lateral_deg"]) / _beam_step_rad(x, frame)
     power = (x * x).astype(np.float32)
-    ghost = cv2.warpAffine(power, np.float32([[1, 0, beams], [0, 1, rows]]), (x.shape[1], x.shape[0]),
-                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    ghost = _moved(power, beams, rows, border=cv2.BORDER_CONSTANT)
     return np.sqrt(power + p["reflection"] ** 2 * ghost).astype(np.float32)
 
 
@@ -569,9 +572,7 @@ def recursive_average(x: np.ndarray, frame: SonarImage, p: dict[str, float], pin
     k = 0
     while p["memory"] ** k >= 0.02:
         w = p["memory"] ** k
-        moved = cv2.warpAffine(power, np.float32([[1, 0, k * step_beams], [0, 1, -k * step_rows]]),
-                               (x.shape[1], x.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-        total += w * moved
+        total += w * _moved(power, k * step_beams, -k * step_rows)
         weights += w
         k += 1
     return np.sqrt(total / weights).astype(np.float32)

@@ -269,13 +269,13 @@ class Speckle(Effect, order=30):
             texture = (_gamma_texture(source, self.shape_nu, plane.shape)
                        if self.shape_nu < self.RAYLEIGH_LIMIT_NU else None)
             if self.looks > 1.0:  # drawn after the texture: one look keeps the draws it always had
-                power = self._averaged_looks(power, source, plane.shape)
+                power = self._pattern_mean(power, source, plane.shape)
             if texture is not None:
                 power *= texture
             out[i] = plane * np.sqrt(power)
         return out.reshape(intensity.shape)
 
-    def _averaged_looks(self, first: np.ndarray, source: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    def _pattern_mean(self, first: np.ndarray, source: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         """The weighted mean (`look_weights`) of `first` and further independent patterns: SI 1/looks."""
         weights = look_weights(self.looks)
         for weight in weights[1:]:
