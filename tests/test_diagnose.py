@@ -155,6 +155,16 @@ def test_diagnosis_finds_a_planted_catalogue_effect_and_closes_the_gap():
     assert chosen.stability > 0.8 and chosen.share > 0.5  # told apart from ring_down in every resample
 
 
+def test_the_draw_memo_leaves_a_diagnosis_bit_identical_on_every_core():
+    sim = sim_frames(10, seed=1)
+    real = [apply_effects(f, [make_effect("speckle", shape_nu=3.0, looks=2.5)], np.random.default_rng(0))
+            for f in sim_frames(10, seed=2)]
+    config = dataclasses.replace(FAST, effects=("speckle", "tvg_noise"), workers=2)
+    remembered, plain = ({**run(sim, real, config).to_json(), "seconds": 0.0}
+                         for run in (diagnose, diagnose.__wrapped__))
+    assert remembered["selected"] and remembered == plain
+
+
 def test_a_plain_gain_difference_is_not_blamed_on_an_effect():
     # "Real" = the sim's world 3 dB darker, falling a further 4 dB towards the far range. The TVG ramp or the
     # quantiser's gain can mimic that, but a plain gain profile does as well, so no effect is blamed for it.

@@ -186,7 +186,7 @@ def test_speckle_of_several_looks_is_lighter_than_rayleigh_and_one_look_keeps_it
         assert power.var() / power.mean() ** 2 == pytest.approx(1.0 / looks, rel=0.08)  # SI = 1 / looks
     one = Speckle(shape_nu=3.0, looks=1.0)
     source = rng(5)  # one look: the field, then the texture, as before looks existed
-    expected = flat * np.sqrt(one._smoothed_power(*effects_module._complex_gaussian(source, flat.shape))
+    expected = flat * np.sqrt(one.pattern(source, flat.shape)
                               * effects_module._gamma_texture(source, 3.0, flat.shape))
     np.testing.assert_array_equal(one.apply(flat, frame, rng(5)), expected)
 

@@ -66,6 +66,7 @@ from sonar_realism.evaluate.statistics import StatisticsConfig, frame_statistics
 from sonar_realism.frames import SonarImage
 from sonar_realism.parallel import parallel_map
 from sonar_realism.sim.effects import Effect
+from sonar_realism.sim.repeated_draws import remembering_draws
 
 # Fewer held-out frames a side than this and a bootstrap resample repeats most of them: no ranking is told apart.
 MIN_FRAMES_TO_TELL = 4
@@ -103,6 +104,7 @@ def check_sets(sim: Sequence[SonarImage], real: Sequence[SonarImage]) -> None:
                           f"{need[0]} ranges x {need[1]} beams")
 
 
+@remembering_draws()  # every candidate is evaluated under the same seeds: each draws the same fields again
 def diagnose(sim: Sequence[SonarImage], real: Sequence[SonarImage], config: DiagnoseConfig | None = None,
              progress: Callable[[str], None] | None = None, scene: SceneStart | None = None) -> Diagnosis:
     """The diagnosis of `sim` against `real` (default config: `DiagnoseConfig()`). With `scene` (what a

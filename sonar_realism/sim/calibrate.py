@@ -95,6 +95,7 @@ from sonar_realism.sim.effects import (
 )
 from sonar_realism.sim.fingerprint import Fingerprint, distance, fingerprint, per_frame_rescaled, resample_profile
 from sonar_realism.sim.measure import SeabedStats
+from sonar_realism.sim.repeated_draws import remembering_draws
 from sonar_realism.sim.sensor import oculus_bearing_table
 from sonar_realism.sim.simulate import simulate
 from sonar_realism.sim.texture import DEFAULT_LEARNED_STEPS, FIT_FRAMES, fit_learned_texture, fit_texture
@@ -839,6 +840,7 @@ def target_terms_from_annotations(frames: Sequence[SonarImage], images: Sequence
 # ----------------------------------------------------------------------------------------------- the whole fit
 
 
+@remembering_draws()  # its matches evaluate every candidate under the same seeds: each draws the same fields again
 def calibrate(frames: Sequence[SonarImage], source: str, config: CalibrateConfig = CalibrateConfig(),
               log: Any = None, annotations: Annotations | None = None) -> CalibrationResult:
     """Everything `sonar-realism calibrate` writes, from the recording alone (and its object annotations, frame by

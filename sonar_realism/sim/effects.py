@@ -35,6 +35,7 @@ import numpy as np
 from sonar_realism.config import from_dict, to_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
+from sonar_realism.sim.repeated_draws import remembered_draw
 
 SOUND_SPEED_MPS = 1500.0
 # Used when a frame does not say how the sonar sits over the seabed (simulated frames always do).
@@ -125,6 +126,7 @@ def _filter_ranges(power: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     return out.reshape(power.shape)
 
 
+@remembered_draw
 def _complex_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Real and imaginary parts, independent N(0, 1) float32, by Box-Muller (about twice as fast as normals)."""
     magnitude = np.sqrt(np.float32(2.0) * rng.standard_exponential(shape, dtype=np.float32))
@@ -152,6 +154,7 @@ def look_weights(looks: float) -> list[float]:
     return [1.0] * (whole - 1) + [float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))]
 
 
+@remembered_draw
 def _gamma_texture(rng: np.random.Generator, shape_nu: float, shape: tuple[int, ...]) -> np.ndarray:
     """Gamma(nu, 1/nu) float32 (unit mean). Above nu = 2 the Wilson-Hilferty cube of a normal matches the gamma's
     mean, variance and 1-99 % quantiles to < 1 % at a third of the cost of exact gamma draws."""
@@ -265,7 +268,7 @@ class Speckle(Effect, order=30):
         planes = _planes(intensity)
         out = np.empty_like(planes)
         for i, plane in enumerate(planes):
-            power = self._smoothed_power(*_complex_gaussian(source, plane.shape))
+            power = self.pattern(source, plane.shape)
             texture = (_gamma_texture(source, self.shape_nu, plane.shape)
                        if self.shape_nu < self.RAYLEIGH_LIMIT_NU else None)
             if self.looks > 1.0:  # drawn after the texture: one look keeps the draws it always had
@@ -275,24 +278,31 @@ class Speckle(Effect, order=30):
             out[i] = plane * np.sqrt(power)
         return out.reshape(intensity.shape)
 
+    def pattern(self, source: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """One speckle pattern: the power of a complex Gaussian field filtered to the resolution cell, unit mean."""
+        return _speckle_pattern(source, shape, self.grain_beams, self.grain_ranges)
+
     def _pattern_mean(self, first: np.ndarray, source: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         """The weighted mean (`look_weights`) of `first` and further independent patterns: SI 1/looks."""
         weights = look_weights(self.looks)
         for weight in weights[1:]:
-            first += np.float32(weight) * self._smoothed_power(*_complex_gaussian(source, shape))
+            first += np.float32(weight) * self.pattern(source, shape)
         return first / np.float32(sum(weights))
 
-    def _smoothed_power(self, re: np.ndarray, im: np.ndarray) -> np.ndarray:
-        """|re + i im|^2 of the cell-filtered complex field, scaled to unit mean."""
-        if self.grain_beams <= 0 and self.grain_ranges <= 0:
-            return (re * re + im * im) / np.float32(2.0)
-        sx, sy = max(self.grain_beams, 1e-3), max(self.grain_ranges, 1e-3)
-        kx = cv2.getGaussianKernel(2 * int(math.ceil(3 * sx)) + 1, sx, cv2.CV_32F)
-        ky = cv2.getGaussianKernel(2 * int(math.ceil(3 * sy)) + 1, sy, cv2.CV_32F)
-        gain = float((kx ** 2).sum() * (ky ** 2).sum())  # variance kept by the filter
-        re = cv2.sepFilter2D(re, -1, kx, ky, borderType=cv2.BORDER_REFLECT_101)
-        im = cv2.sepFilter2D(im, -1, kx, ky, borderType=cv2.BORDER_REFLECT_101)
-        return (re * re + im * im) / np.float32(2.0 * gain)
+
+@remembered_draw
+def _speckle_pattern(rng: np.random.Generator, shape: tuple[int, ...], grain_beams: float,
+                     grain_ranges: float) -> np.ndarray:
+    re, im = _complex_gaussian(rng, shape)
+    if grain_beams <= 0 and grain_ranges <= 0:
+        return (re * re + im * im) / np.float32(2.0)
+    sx, sy = max(grain_beams, 1e-3), max(grain_ranges, 1e-3)
+    kx = cv2.getGaussianKernel(2 * int(math.ceil(3 * sx)) + 1, sx, cv2.CV_32F)
+    ky = cv2.getGaussianKernel(2 * int(math.ceil(3 * sy)) + 1, sy, cv2.CV_32F)
+    gain = float((kx ** 2).sum() * (ky ** 2).sum())  # variance kept by the filter
+    re = cv2.sepFilter2D(re, -1, kx, ky, borderType=cv2.BORDER_REFLECT_101)
+    im = cv2.sepFilter2D(im, -1, kx, ky, borderType=cv2.BORDER_REFLECT_101)
+    return (re * re + im * im) / np.float32(2.0 * gain)
 
 
 @dataclass(frozen=True)
