@@ -7,7 +7,8 @@ parameter's search range), the fraction of the gap closed on held-out frames (of
 above the null case's gap: sim and "real" come from different worlds), whether anything is selected when nothing
 is hidden, what happens with withheld effects that are not in the catalogue (selected? residual in the right
 place?), which cases were reported as ambiguous, and the wall time of 500 vs 500 diagnoses at 512 ranges x 256
-beams (2 hidden effects, and the 4-effect worst case).
+beams (2 hidden effects, and the 4-effect worst case), each beside the same diagnosis without remembered draws
+(sim/repeated_draws.py) in the same run.
 
     nice python bench/bench_diagnose.py [--quick] [--skip-timing | --skip-accuracy] [--cases A,B] [--out FILE]
 """
@@ -28,6 +29,7 @@ from sonar_realism.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sonar_realism.diagnose.validation import WITHHELD, blind_run, draw_hidden, make_real
 from sonar_realism.sim import SensorConfig, simulate
 from sonar_realism.sim.effects import PIPELINE_ORDER
+from sonar_realism.sim.repeated_draws import remembering_draws
 
 PAIRS = [("speckle", "tvg_noise"), ("beam_sidelobes", "gamma_quantization"), ("range_blur", "ring_down"),
          ("multipath", "speckle"), ("motion_blur", "tvg_noise"), ("elevation_spread", "interference"),
@@ -157,16 +159,24 @@ def cpu_seconds() -> float:
 
 def timing(n: int, config: DiagnoseConfig, label: str) -> dict:
     """One diagnosis of n vs n frames at the simulator's 512 x 256 grid (frames made before the clock starts), with
-    the effects of TIMING_HIDDEN[label] hidden."""
+    the effects of TIMING_HIDDEN[label] hidden; then the same diagnosis without remembered draws (the baseline: the
+    result must be the same)."""
     sensor = SensorConfig()
     hidden = TIMING_HIDDEN[label]
     sim = frames(n, 5, sensor)
     real = make_real(frames(n, 6, sensor), hidden, seed=0)
     started, cpu_started = time.perf_counter(), cpu_seconds()
     result = diagnose(sim, real, config)
-    seconds = time.perf_counter() - started
+    seconds, cpu_s = time.perf_counter() - started, cpu_seconds() - cpu_started
+    started = time.perf_counter()
+    with remembering_draws(limit_mb=0):
+        baseline = diagnose(sim, real, config)
+    baseline_s = time.perf_counter() - started
+    if {**baseline.to_json(), "seconds": 0} != {**result.to_json(), "seconds": 0}:
+        raise AssertionError(f"timing {label}: the diagnosis changed without remembered draws")
     return {"n_sim": n, "n_real": n, "grid": "512 x 256", "hidden": "+".join(hidden), "label": label,
-            "seconds": seconds, "cpu_s": cpu_seconds() - cpu_started, "load_1min": os.getloadavg()[0],
+            "seconds": seconds, "cpu_s": cpu_s, "load_1min": os.getloadavg()[0],
+            "baseline_no_remembered_draws_s": baseline_s, "time_vs_baseline": seconds / baseline_s,
             "selected": list(result.selected), "gap_closed": result.gap_closed,
             "verdict": result.verdict}
 
@@ -206,9 +216,10 @@ def main() -> int:
     print("\n| measure | value | goal |\n|---|---|---|")
     for r in rows:
         if r["case"] == "timing":
-            print(f"| 500 vs 500 frames, 512 x 256, {r['label']}: wall time (CPU time; load; selected) | "
-                  f"{r['seconds']:.0f} s ({r['cpu_s']:.0f} s CPU; load {r['load_1min']:.1f}; "
-                  f"{','.join(r['selected']) or 'none'}) | <= 120 s |")
+            print(f"| 500 vs 500 frames, 512 x 256, {r['label']}: wall time (CPU time; load; selected; without "
+                  f"remembered draws, same run) | {r['seconds']:.0f} s ({r['cpu_s']:.0f} s CPU; load "
+                  f"{r['load_1min']:.1f}; {','.join(r['selected']) or 'none'}; "
+                  f"{r['baseline_no_remembered_draws_s']:.0f} s, x{r['time_vs_baseline']:.2f}) | <= 120 s |")
     summary = next((r for r in rows if r["case"] == "summary"), None)
     if summary is None:
         return 0

@@ -63,6 +63,10 @@ def test_nothing_is_remembered_outside_the_block_and_the_memo_keeps_its_size() -
         _uniform_field(np.random.default_rng(0), (256, 128))  # the oldest: gone
         assert len(calls) == 13
     assert repeated_draws._memo is None
+    with remembering_draws(limit_mb=0), remembering_draws():  # the baseline: an outer block that keeps nothing
+        _uniform_field(np.random.default_rng(3), (8, 8))
+        _uniform_field(np.random.default_rng(3), (8, 8))
+    assert len(calls) == 15
 
 
 @pytest.mark.parametrize("with_seed", [True, False])

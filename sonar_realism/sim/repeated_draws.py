@@ -51,7 +51,8 @@ _memo: _Memo | None = None
 @contextlib.contextmanager
 def remembering_draws(limit_mb: int = 256) -> Iterator[None]:
     """Within this block `@remembered_draw` functions remember up to `limit_mb` MB of draws (least recently used
-    go first). Nested blocks share the outermost one's memo; it is emptied when that block ends."""
+    go first; 0: nothing, a baseline for benchmarks). Nested blocks share the outermost one's memo; it is emptied
+    when that block ends."""
     global _memo
     if _memo is not None:
         yield
