@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -51,22 +53,32 @@ def test_nothing_is_remembered_outside_the_block_and_the_memo_keeps_its_size() -
     calls.clear()
     _uniform_field(np.random.default_rng(3), (8, 8))
     _uniform_field(np.random.default_rng(3), (8, 8))
-    assert len(calls) == 2 and repeated_draws._memo is None
+    assert len(calls) == 2 and repeated_draws.current_memo() is None
     with remembering_draws(limit_mb=1):
         with remembering_draws():  # nested: the outer memo serves
             for seed in range(10):
                 _uniform_field(np.random.default_rng(seed), (256, 128))  # 256 KB each
-            memo = repeated_draws._memo
+            memo = repeated_draws.current_memo()
             assert memo is not None and memo.bytes <= 2 ** 20 and len(memo.entries) == 4
         _uniform_field(np.random.default_rng(9), (256, 128))  # the most recent: still there
         assert len(calls) == 12
         _uniform_field(np.random.default_rng(0), (256, 128))  # the oldest: gone
         assert len(calls) == 13
-    assert repeated_draws._memo is None
+    assert repeated_draws.current_memo() is None
     with remembering_draws(limit_mb=0), remembering_draws():  # the baseline: an outer block that keeps nothing
         _uniform_field(np.random.default_rng(3), (8, 8))
         _uniform_field(np.random.default_rng(3), (8, 8))
     assert len(calls) == 15
+
+
+def test_each_thread_has_its_own_memo() -> None:
+    seen: list[object] = []
+    with remembering_draws():
+        worker = threading.Thread(target=lambda: seen.append(repeated_draws.current_memo()))
+        worker.start()
+        worker.join()
+        assert repeated_draws.current_memo() is not None
+    assert seen == [None]
 
 
 @pytest.mark.parametrize("with_seed", [True, False])

@@ -5,12 +5,14 @@ evaluation, so each evaluation draws the same noise fields again (a quarter of a
 them). Inside `remembering_draws()`, a function marked `@remembered_draw` keeps what it drew under the generator's
 state and its other arguments; called again from that state with those arguments, it returns a copy and moves the
 generator on exactly as the draw did. So results are bit-identical with and without the memo. Outside the context
-nothing is kept (a simulator never draws the same field twice)."""
+nothing is kept (a simulator never draws the same field twice). Each thread has its own memo (a forked worker starts
+with a copy of its parent's)."""
 
 from __future__ import annotations
 
 import contextlib
 import functools
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
@@ -45,7 +47,12 @@ class _Memo:
             self.bytes -= sum(a.nbytes for a in _arrays(old))
 
 
-_memo: _Memo | None = None
+_local = threading.local()
+
+
+def current_memo() -> _Memo | None:
+    """This thread's memo, None outside `remembering_draws()`."""
+    return getattr(_local, "memo", None)
 
 
 @contextlib.contextmanager
@@ -53,15 +60,14 @@ def remembering_draws(limit_mb: int = 256) -> Iterator[None]:
     """Within this block `@remembered_draw` functions remember up to `limit_mb` MB of draws (least recently used
     go first; 0: nothing, a baseline for benchmarks). Nested blocks share the outermost one's memo; it is emptied
     when that block ends."""
-    global _memo
-    if _memo is not None:
+    if current_memo() is not None:
         yield
         return
-    _memo = _Memo(limit_mb * 2 ** 20)
+    _local.memo = _Memo(limit_mb * 2 ** 20)
     try:
         yield
     finally:
-        _memo = None
+        _local.memo = None
 
 
 def remembered_draw(draw: Draw) -> Draw:
@@ -69,13 +75,14 @@ def remembered_draw(draw: Draw) -> Draw:
 
     @functools.wraps(draw)
     def wrapper(rng: np.random.Generator, *args: Any) -> Any:
-        if _memo is None:
+        memo = current_memo()
+        if memo is None:
             return draw(rng, *args)
         key = (draw.__qualname__, _frozen(rng.bit_generator.state), args)
-        entry = _memo.get(key)
+        entry = memo.get(key)
         if entry is None:
             value = draw(rng, *args)
-            _memo.put(key, _copied(value), rng.bit_generator.state)
+            memo.put(key, _copied(value), rng.bit_generator.state)
             return value
         value, state_after = entry
         rng.bit_generator.state = state_after
