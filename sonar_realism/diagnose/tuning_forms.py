@@ -87,9 +87,11 @@ def _flat_seabed_elevation(frame: SonarImage) -> np.ndarray:
     return seabed_elevation(frame, altitude, tilt)
 
 
-def _complex_noise(ping: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-    """Circular complex Gaussian noise of unit power (real part drawn first)."""
-    return (ping.standard_normal(shape) + 1j * ping.standard_normal(shape)) / math.sqrt(2)
+def _with_receiver_noise(echo: np.ndarray, level: np.ndarray, ping: np.random.Generator) -> np.ndarray:
+    """The amplitude of `echo` plus circular complex Gaussian noise of rms `level` (real part drawn first), added as
+    fields: Rayleigh where there is no echo."""
+    noise = (ping.standard_normal(echo.shape) + 1j * ping.standard_normal(echo.shape)) / math.sqrt(2)
+    return np.abs(echo + level * noise).astype(np.float32)
 
 
 def _moved(power: np.ndarray, beams: float, rows: float, border: int = cv2.BORDER_REFLECT_101) -> np.ndarray:
@@ -364,9 +366,7 @@ def noise_before_gain(x: np.ndarray, frame: SonarImage, p: dict[str, float], pin
     echoes by `absorption_db_per_m` two-way. Noise and echo add as complex fields (Rayleigh where no echo)."""
     r = frame.ranges_m[:, None]
     echo = x * 10 ** (-p["absorption_db_per_m"] * (r - r[0]) / 20)
-    level = p["noise_level"] * r / r[-1]
-    noise = _complex_noise(ping, x.shape)
-    return np.abs(echo + level * noise).astype(np.float32)
+    return _with_receiver_noise(echo, p["noise_level"] * r / r[-1], ping)
 
 
 @tuning_form("elevation_spread", "mispointed_gaussian",
@@ -520,8 +520,7 @@ def agc_floor(x: np.ndarray, frame: SonarImage, p: dict[str, float], ping: np.ra
     r = frame.ranges_m[:, None]
     level = p["noise_level"] * (r / r[-1]) ** p["exponent"]
     level = level * math.exp(p["jitter"] * float(ping.standard_normal()) - 0.5 * p["jitter"] ** 2)
-    noise = _complex_noise(ping, x.shape)
-    return np.abs(x + level * noise).astype(np.float32)
+    return _with_receiver_noise(x, level, ping)
 
 
 @tuning_form("elevation_spread", "lopsided_vertical",
