@@ -9,8 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, apply_held_out
+from sonar_realism.diagnose.heldout import IMPLEMENTATIONS, apply_held_out, find_implementation
+from sonar_realism.diagnose.heldout.base import REGISTRIES
 from sonar_realism.diagnose.tuning_forms import TUNING
+from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.sim.effects import EFFECTS
 
@@ -232,3 +234,13 @@ def test_the_lopsided_pattern_darkens_the_seabed_more_on_its_narrow_side():
     wider_above = run("elevation_spread/lopsided_vertical", lit, beamwidth_deg=10.0, lopsided=0.5)
     wider_below = run("elevation_spread/lopsided_vertical", lit, beamwidth_deg=10.0, lopsided=-0.5)
     assert (wider_above <= 0.5 + 1e-6).all() and not np.allclose(wider_above, wider_below)
+
+
+def test_an_unknown_form_names_the_tuning_forms_and_none_of_the_held_out_ones():
+    # a tuning script that misspells a form must not show whoever reads its error what the held-out sets hold
+    with pytest.raises(ConfigError) as error:
+        find_implementation("speckle/no_such_form")
+    message = str(error.value)
+    assert next(iter(TUNING)) in message
+    unseen = [name for known in REGISTRIES if known is not TUNING for name in known]
+    assert unseen and not any(name in message for name in unseen)

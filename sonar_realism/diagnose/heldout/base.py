@@ -142,11 +142,14 @@ def _register(registry: dict[str, Implementation], family: str, form: str,
 
 
 def find_implementation(name: str) -> Implementation:
-    """Validation implementation `name` of any set (ConfigError naming the known ones if none)."""
+    """Validation implementation `name` of any set (ConfigError if none, naming the tuning forms only: the held-out
+    and blind sets' names would tell whoever reads the message what the held-out half holds)."""
     entry = next((known[name] for known in REGISTRIES if name in known), None)
     if entry is None:
-        known_names = sorted(n for known in REGISTRIES for n in known)
-        raise ConfigError(f"no validation implementation {name!r}; have {known_names}")
+        unseen = sum(len(known) for known in REGISTRIES if known is not TUNING)
+        raise ConfigError(f"no validation implementation {name!r}; tuning forms (registered when "
+                          f"sonar_realism.diagnose.tuning_forms is imported): {sorted(TUNING)}; {unseen} more in "
+                          f"the held-out and blind sets, not listed")
     return entry
 
 
