@@ -3,7 +3,9 @@ samples from a checkpoint with a texture layer, docs/nodes.md)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from pathlib import Path
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
@@ -23,8 +25,10 @@ class TranslatorParams:
     def validate(self) -> None:
         if self.n < 1 or self.batch < 1:
             raise ConfigError(f"translator: n ({self.n}) and batch ({self.batch}) must be >= 1")
-        if self.temperature < 0:
-            raise ConfigError(f"translator: temperature must be >= 0, got {self.temperature}")
+        if not 0 <= self.temperature < math.inf:
+            raise ConfigError(f"translator: temperature must be a number >= 0, got {self.temperature}")
+        if self.checkpoint and not Path(self.checkpoint).is_file():
+            raise ConfigError(f"translator: checkpoint {self.checkpoint}: no such file")
 
 
 class TranslatorNode(Node):

@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sonar_realism.config import from_dict, to_dict  # noqa: E402
 from sonar_realism.data import OCULUS_FIT_RECORDING, real_oculus_dir  # noqa: E402
 from sonar_realism.evaluate.two_sample import TextureTestConfig, texture_two_sample_test  # noqa: E402
-from sonar_realism.sim.calibrate import load_recording  # noqa: E402
+from sonar_realism.io import load_recording  # noqa: E402
 from sonar_realism.sim.calibrated import simulate_calibrated  # noqa: E402
 from sonar_realism.sim.calibration import Calibration, load_calibration  # noqa: E402
 from sonar_realism.sim.fingerprint import per_frame_rescaled  # noqa: E402

@@ -31,12 +31,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from sonar_realism.io import load_recording  # noqa: E402
 from sonar_realism.models.speckle_fit import top_ratio  # noqa: E402
 from sonar_realism.sim.annotations import parse_classes, read_annotations  # noqa: E402
 from sonar_realism.sim.calibrate import (  # noqa: E402
     CalibrateConfig,
     effect_in,
-    load_recording,
     match_export_knee,
     match_near_field,
     match_noise_floor,

@@ -52,6 +52,7 @@ from sonar_realism.evaluate.two_sample import (  # noqa: E402
     texture_two_sample_test,
 )
 from sonar_realism.frames import SonarImage  # noqa: E402
+from sonar_realism.io import load_recording  # noqa: E402
 from sonar_realism.models.datasets import frames_on_grid  # noqa: E402
 from sonar_realism.sim.annotations import (  # noqa: E402
     AnnotatedObject,
@@ -60,7 +61,7 @@ from sonar_realism.sim.annotations import (  # noqa: E402
     parse_classes,
     read_annotations,
 )
-from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, load_recording, prepare_frames  # noqa: E402
+from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, prepare_frames  # noqa: E402
 from sonar_realism.sim.calibrated import simulate_calibrated  # noqa: E402
 from sonar_realism.sim.calibration import Calibration, load_calibration, save_calibration  # noqa: E402
 from sonar_realism.sim.fingerprint import PROFILE_BINS, per_frame_rescaled, resample_profile  # noqa: E402

@@ -58,6 +58,12 @@ def main(argv: list[str] | None = None) -> int:
     except SonarRealismError as exc:
         print(f"sonar-realism {chosen}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of our output left (`inspect ... | head`): nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as exc:  # a file the arguments name that the system refused (the message names the file)
+        print(f"sonar-realism {chosen}: error: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"sonar-realism {chosen}: interrupted", file=sys.stderr)
         return 130

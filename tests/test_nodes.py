@@ -92,6 +92,10 @@ def test_translator_params_are_validated():
         from_dict(TranslatorParams, {"n": 0})
     with pytest.raises(ConfigError, match="unknown key"):
         from_dict(TranslatorParams, {"samples": 4})
+    with pytest.raises(ConfigError, match="temperature must be a number >= 0, got nan"):
+        from_dict(TranslatorParams, {"temperature": float("nan")})
+    with pytest.raises(ConfigError, match="checkpoint /nonexistent.safetensors: no such file"):
+        from_dict(TranslatorParams, {"checkpoint": "/nonexistent.safetensors"})
 
 
 # ---- replay ------------------------------------------------------------------------------------------

@@ -16,9 +16,9 @@ from sonar_realism.cli import main as cli_main
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage, uniform_azimuths, uniform_ranges
 from sonar_realism.geometry import fan_layout, polar_to_fan
-from sonar_realism.io import read_frames
+from sonar_realism.io import load_recording, read_frames
 from sonar_realism.sim.annotations import parse_classes, read_annotations
-from sonar_realism.sim.calibrate import CalibrateConfig, calibrate, load_recording
+from sonar_realism.sim.calibrate import CalibrateConfig, calibrate
 from sonar_realism.sim.calibrated import simulate_calibrated, target_count
 from sonar_realism.sim.calibration import Estimate, load_calibration
 from tests.test_sim_calibrate import truth

@@ -192,3 +192,36 @@ def test_one_loader_tells_a_cdfcvae_from_a_cyclegan_checkpoint(checkpoint, tmp_p
         with pytest.raises(ConfigError, match="device 'tpu'"):
             load_translator(path, "tpu")
 
+
+
+def test_translate_command_refuses_to_write_into_the_recording_it_reads(checkpoint, tmp_path):
+    write_frames([_frame(i, seed=i) for i in range(2)], tmp_path / "sim")
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--checkpoint", str(checkpoint), "--in", str(tmp_path / "sim"),
+                              "--out", str(tmp_path / "sim" / "."), "--device", "cpu"])
+    with pytest.raises(ConfigError, match="--out .* is the --in recording"):
+        run(args)
+    assert len(list(read_frames(tmp_path / "sim"))) == 2  # nothing read was removed
+
+
+def test_translate_command_says_what_it_could_not_read(checkpoint, tmp_path, capsys):
+    # a capture cut short inside its last ping: the whole pings are translated and the cut one is reported
+    data = (Path(__file__).parent / "data" / "three_pings_8bit.raw").read_bytes()
+    (tmp_path / "cut.raw").write_bytes(data[: int(len(data) * 0.9)])
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--checkpoint", str(checkpoint), "--in", str(tmp_path / "cut.raw"),
+                              "--out", str(tmp_path / "out"), "--n", "1", "--device", "cpu"])
+    assert run(args) == 0
+    assert len(list(read_frames(tmp_path / "out"))) == 2
+    assert "1 record(s) could not be read" in capsys.readouterr().err
+
+
+def test_a_checkpoint_with_an_unknown_normalisation_is_refused(checkpoint):
+    info_path = checkpoint.with_suffix(".json")
+    info = json.loads(info_path.read_text())
+    info["normalisation"] = "bogus"
+    info_path.write_text(json.dumps(info))
+    with pytest.raises(FormatError, match="normalisation.*'bogus' is none of frame_max, full_scale"):
+        Translator.from_checkpoint(checkpoint, device="cpu")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from sonar_realism.arguments import non_negative_int, output_folder
 from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.diagnose.config import DiagnoseConfig
 from sonar_realism.diagnose.diagnosis import diagnose
@@ -22,7 +23,7 @@ from sonar_realism.diagnose.scene_terms import SceneStart
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import resample_to_grid
-from sonar_realism.io import read_frames
+from sonar_realism.io import load_recording
 from sonar_realism.sim.calibration import load_calibration
 
 
@@ -40,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", help="CALIB.json of the real sensor (or a shipped name: oculus): the sim's "
                                               "geometry and scene (mounting, seabed patchiness) become candidates "
                                               "beside the sensor effects, starting where the calibration puts them")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--config", help="JSON file with DiagnoseConfig fields (overrides the options above)")
 
 
@@ -51,10 +52,15 @@ def run(args: argparse.Namespace) -> int:
                 "effects": [e.strip() for e in args.effects.split(",") if e.strip()]}
     if args.config:
         try:
-            settings.update(json.loads(Path(args.config).read_text()))
+            given = json.loads(Path(args.config).read_text())
         except (OSError, json.JSONDecodeError) as exc:
             raise ConfigError(f"--config {args.config}: {exc}") from exc
+        if not isinstance(given, dict):
+            raise ConfigError(f"--config {args.config}: expected a JSON object of DiagnoseConfig fields, got "
+                              f"{type(given).__name__}")
+        settings.update(given)
     config = from_dict(DiagnoseConfig, settings, where="diagnose config")
+    output_folder(args.out, "--out")
     scene = SceneStart.from_calibration(load_calibration(args.calibration)) if args.calibration else None
     sim = load_set(args.sim, args.max_frames)
     real = load_set(args.real, args.max_frames)
@@ -80,9 +86,9 @@ def load_set(paths: Sequence[str], max_frames: int) -> list[SonarImage]:
     """All frames of `paths`, evenly thinned to at most `max_frames`."""
     frames: list[SonarImage] = []
     for path in paths:
-        frames.extend(tqdm(read_frames(path), desc=f"read {path}", unit="frame"))
+        frames.extend(load_recording(path))
     if not frames:
-        raise ConfigError(f"no frames found in {', '.join(paths)}")
+        raise ConfigError(f"no frames found in {', '.join(paths)} (nor in their subfolders)")
     if len(frames) > max_frames:
         keep = np.linspace(0, len(frames) - 1, max_frames).round().astype(int)
         frames = [frames[i] for i in keep]

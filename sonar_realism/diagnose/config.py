@@ -29,6 +29,8 @@ class SearchConfig:
     def validate(self) -> None:
         if self.points < 2 or self.rounds < 1 or not 0 <= self.first_round < self.rounds:
             raise ConfigError("SearchConfig: points >= 2, rounds >= 1 and 0 <= first_round < rounds")
+        if self.seed < 0:
+            raise ConfigError(f"diagnose.search.seed: must be 0 or more, got {self.seed}")
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,8 @@ class DiagnoseConfig:
             raise ConfigError(f"diagnose.bootstrap: at least 1 resample, got {self.bootstrap}")
         if self.workers < 1:
             raise ConfigError(f"diagnose.workers: at least 1, got {self.workers}")
+        if self.seed < 0:
+            raise ConfigError(f"diagnose.seed: must be 0 or more, got {self.seed}")
         if not 0.0 < self.ambiguity <= 0.5:
             raise ConfigError(f"diagnose.ambiguity: must be in (0, 0.5], got {self.ambiguity}")
         if self.normalize not in ("none", "max"):

@@ -11,16 +11,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-from itertools import islice
 from pathlib import Path
 
 from tqdm import tqdm
 
+from sonar_realism.arguments import non_negative_int, output_folder, positive_int
 from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.errors import ConfigError
 from sonar_realism.evaluate.suite import SimInput, SuiteConfig, Translator
 from sonar_realism.frames import SonarImage
-from sonar_realism.io import read_frames
+from sonar_realism.io import load_recording
 from sonar_realism.models.realism_cnn import RealismCNNConfig
 from sonar_realism.sim.masks import frames_with_masks
 
@@ -38,11 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output folder (results.json, report.html, report.md, PNGs)")
     parser.add_argument("--n", type=int, default=4, help="samples per input from each translator (default 4)")
     parser.add_argument("--grid", default="128x128", help="model grid ROWSxCOLS (default 128x128)")
-    parser.add_argument("--max-real", type=int, default=None, help="use at most this many real frames")
+    parser.add_argument("--max-real", type=positive_int, default=None, help="use at most this many real frames")
     parser.add_argument("--yardstick", help="real frames of another recording (e.g. the translators' training "
                                             "one), scored in Table I beside the held-out reference")
     parser.add_argument("--cnn-epochs", type=int, default=RealismCNNConfig.epochs, help="realism CNN epochs")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--device", default="auto", help="torch device for the translators (auto, cpu, cuda or cuda:N)")
 
 
@@ -78,8 +78,12 @@ def _sim_inputs(args: argparse.Namespace) -> list[SimInput]:
     return items
 
 
-def _read_real(path: str, limit: int | None, label: str) -> list[SonarImage]:
-    return list(islice(tqdm(read_frames(path), desc=label, unit="frame"), limit or None))
+def _read_real(path: str, limit: int | None, flag: str) -> list[SonarImage]:
+    """The first `limit` real frames of `path` (a data set split into subfolders too)."""
+    frames = load_recording(path)[:limit]
+    if not frames:
+        raise ConfigError(f"{flag} {path}: no frames found (in it or in its subfolders)")
+    return frames
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from sonar_realism.evaluate.report import write_report
     from sonar_realism.evaluate.suite import run_suite
 
+    output_folder(args.out, "--out")
     torch.manual_seed(args.seed)
     grid = parse_grid(args.grid)
     config = from_dict(SuiteConfig, {"grid": list(grid), "n_samples": args.n, "seed": args.seed,
@@ -98,8 +103,8 @@ def run(args: argparse.Namespace) -> int:
         if name in translators:
             name = f"{name}-{Path(path).stem}"
         translators[name], paths[name] = translator, path
-    real = _read_real(args.real, args.max_real, "read real")
-    other = _read_real(args.yardstick, args.max_real, "read yardstick") if args.yardstick else []
+    real = _read_real(args.real, args.max_real, "--real")
+    other = _read_real(args.yardstick, args.max_real, "--yardstick") if args.yardstick else []
     sim = _sim_inputs(args)
     result = run_suite(real, sim, translators, config, log=lambda line: print(line, file=sys.stderr),
                        other_real=other)

@@ -20,7 +20,7 @@ from sonar_realism.frames import SonarImage
 from sonar_realism.io import folder, npz, oculus, rosbag
 from sonar_realism.io.report import ReadReport
 
-__all__ = ["ReadReport", "read_frames", "write_frames", "sniff"]
+__all__ = ["ReadReport", "load_recording", "read_frames", "write_frames", "sniff"]
 
 _HEAD_BYTES = 64
 
@@ -71,6 +71,24 @@ def read_frames(path: str | Path, report: ReadReport | None = None, topic: str |
         yield from rosbag.read_bag(path, kind, report, topic, geometry)
     else:
         yield from _read_file(path, kind, report)
+
+
+def load_recording(path: str | Path, match: str | None = None, limit: int | None = None) -> list[SonarImage]:
+    """Every frame of `path` as `read_frames` reads it; a folder with no frames of its own but subfolders (a data
+    set split into train/images, val/images) is read folder by folder, its frames in source-name order. `match`
+    keeps the frames whose source name contains it; `limit` thins them evenly to at most that many."""
+    path = Path(path)
+    frames = list(read_frames(path))
+    if not frames and path.is_dir():
+        # a frames folder's own frames/ and geometry/ are read with it, not again as folders of images
+        folders = sorted(p for p in path.rglob("*") if p.is_dir()
+                         and not any(folder.is_frames_folder(up) for up in p.parents if path in up.parents))
+        frames = sorted((f for folder in folders for f in read_frames(folder)),
+                        key=lambda f: str(f.meta.get("source", "")))
+    frames = [f for f in frames if match is None or match in str(f.meta.get("source", ""))]
+    if limit and len(frames) > limit:
+        frames = frames[:: max(1, len(frames) // limit)][:limit]
+    return frames
 
 
 def write_frames(frames: Iterable[SonarImage], path: str | Path) -> int:

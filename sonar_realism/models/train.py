@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -35,6 +36,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 from tqdm import tqdm
 
+from sonar_realism.arguments import non_negative_int
 from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
@@ -101,8 +103,14 @@ class TrainConfig:
         self.model.validate()
         self.perceptual.validate()
         self.texture_fit.validate()
-        if self.learning_rate <= 0 or self.batch_size < 1 or self.patience < 1:
-            raise ConfigError("learning_rate, batch_size and patience must be positive")
+        if not 0 < self.learning_rate < math.inf:
+            raise ConfigError(f"learning_rate: must be a positive number, got {self.learning_rate}")
+        if self.batch_size < 1 or self.patience < 1:
+            raise ConfigError(f"batch_size and patience must be positive, got {self.batch_size} and {self.patience}")
+        if len(self.adam_betas) != 2 or not all(0.0 <= beta < 1.0 for beta in self.adam_betas):
+            raise ConfigError(f"adam_betas: two numbers in [0, 1), got {list(self.adam_betas)}")
+        if self.seed < 0:
+            raise ConfigError(f"seed: must be 0 or more, got {self.seed}")
         if self.epochs1 < 0 or self.epochs2 < 0:
             raise ConfigError("epochs1 and epochs2 must be >= 0")
         if not 0.0 < self.val_fraction < 1.0:
@@ -489,6 +497,9 @@ def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out:
     trainer = Trainer(cfg, out, pick_device(device), progress)
     if resume and cycle1 is not None:
         raise ConfigError("--cycle1 starts a run; --resume continues one: give one of them")
+    if not resume and (out / "state.json").is_file():
+        raise ConfigError(f"--out {out} already holds a training run (state.json): continue it with --resume, or "
+                          f"choose another --out")
     if resume:
         if not (out / "state.json").is_file():
             raise ConfigError(f"--resume: {out} holds no training state (state.json)")
@@ -550,7 +561,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                              "(comma-separated names, e.g. Oculus_20250805_173650); the rest "
                                              "stays held out for evaluation")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
-    parser.add_argument("--seed", type=int, help="default 0")
+    parser.add_argument("--seed", type=non_negative_int, help="default 0")
     parser.add_argument("--resume", action="store_true", help="continue the run left in --out")
     parser.add_argument("--cycle1", help="cdfcvae: reuse this checkpoint's cycle 1 (the real-data VAE, e.g. "
                                          "RUN/cycle1.safetensors) and run only cycle 2 on --sim")
@@ -565,6 +576,9 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             data = json.loads(Path(args.config).read_text())
         except (OSError, json.JSONDecodeError) as exc:
             raise ConfigError(f"--config {args.config}: {exc}") from exc
+        if not isinstance(data, dict):
+            raise ConfigError(f"--config {args.config}: expected a JSON object of TrainConfig keys, got "
+                              f"{type(data).__name__}")
     flags = {"epochs1": args.epochs1, "epochs2": args.epochs2, "batch_size": args.batch_size,
              "max_frames": args.max_frames, "seed": args.seed}
     data.update({k: v for k, v in flags.items() if v is not None})

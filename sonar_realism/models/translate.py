@@ -17,16 +17,17 @@ import sys
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 import torch
 
-from sonar_realism.errors import ConfigError, FrameError
+from sonar_realism.arguments import non_negative_int, not_the_input, output_file, output_folder, positive_int
+from sonar_realism.errors import ConfigError, FormatError, FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.models.cdfcvae import CDFCVAE, file_sha256, load_checkpoint
 from sonar_realism.models.cyclegan import CycleGANTranslator, is_cyclegan_checkpoint
-from sonar_realism.models.datasets import from_model_grid, to_model_grid
+from sonar_realism.models.datasets import Normalisation, from_model_grid, to_model_grid
 from sonar_realism.models.device import pick_device
 from sonar_realism.models.speckle import as_sensor_bytes
 from sonar_realism.models.speckle_fit import EXPORT_LEVELS
@@ -47,6 +48,9 @@ class Translator:
         # Hashed here, once: the translator node stamps every output with it instead of reading the file again.
         self.checkpoint_sha256 = file_sha256(checkpoint)
         self.normalisation = info.get("normalisation", "frame_max")
+        if self.normalisation not in get_args(Normalisation):
+            raise FormatError(f"{checkpoint.with_suffix('.json')}", "normalisation",
+                              f"{self.normalisation!r} is none of {', '.join(get_args(Normalisation))}")
         # channels_last on a CPU too: oneDNN's convolutions run 1.3-5x faster in it than in NCHW here.
         self.model = self.model.to(memory_format=torch.channels_last)
 
@@ -134,9 +138,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--topic", help="--in a ROS bag: its sonar topic (default: the one found by message type)")
     parser.add_argument("--n", type=int, default=8, help="samples per frame (default 8)")
     parser.add_argument("--temperature", type=float, default=1.0, help="latent noise scale s (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="noise seed (default 0)")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
-    parser.add_argument("--max-frames", type=int, help="translate at most this many frames")
+    parser.add_argument("--max-frames", type=positive_int, help="translate at most this many frames")
 
 
 def _chunks(frames: Iterator[SonarImage], size: int, limit: int | None) -> Iterator[list[SonarImage]]:
@@ -155,15 +159,22 @@ def _chunks(frames: Iterator[SonarImage], size: int, limit: int | None) -> Itera
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from sonar_realism.io import read_frames, write_frames
+    from sonar_realism.io import ReadReport, read_frames, write_frames
     from sonar_realism.plots import image_grid
 
+    not_the_input(args.out, args.inp, "--out", "--in")
+    if Path(args.out).suffix.lower() in (".npz", ".mcap"):
+        output_file(args.out, "--out")
+    else:
+        output_folder(args.out, "--out")
     translator = load_translator(args.checkpoint, args.device)
     sheet: list[np.ndarray] = []
     columns = 1 + min(args.n, 7)
 
+    report = ReadReport()
+
     def translated() -> Iterator[SonarImage]:
-        inputs = tqdm(read_frames(args.inp, topic=args.topic), desc="translate", unit="frame")
+        inputs = tqdm(read_frames(args.inp, report, topic=args.topic), desc="translate", unit="frame")
         for index, chunk in enumerate(_chunks(inputs, _FRAMES_PER_PASS, args.max_frames)):
             # Chunk k draws its noise from (seed, k): reproducible end to end and independent across chunks.
             chunk_seed = int(np.random.SeedSequence([args.seed, index]).generate_state(1, np.uint64)[0] >> 1)
@@ -175,6 +186,9 @@ def run(args: argparse.Namespace) -> int:
                 yield output
 
     count = write_frames(translated(), args.out)
+    if report.problems:  # the frames read are translated; what could not be read is said, not passed over
+        print(f"warning: --in {args.inp}: {report.skipped['corrupt record']} record(s) could not be read, e.g. "
+              f"{report.problems[0]}", file=sys.stderr)
     if not count:
         raise ConfigError(f"--in {args.inp}: no frames to translate")
     labels = [("input" if i % columns == 0 else f"sample {i % columns}") for i in range(len(sheet))]

@@ -51,6 +51,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from sonar_realism.arguments import non_negative_int, output_file, positive_int
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage, uniform_ranges
 from sonar_realism.models.speckle_fit import EXPORT_KNEE_LOW, top_ratio
@@ -103,6 +104,7 @@ from sonar_realism.sim.texture import DEFAULT_LEARNED_STEPS, FIT_FRAMES, fit_lea
 EffectT = TypeVar("EffectT", bound=Effect)
 
 MIN_FRAMES = 8
+MIN_GRID = (16, 8)  # ranges x beams: below this a frame holds no seabed profile or texture to fit
 MAX_GRID_MODES = 24
 GAIN_KNOTS = 8
 # Beam counts further apart than this ratio are different sensors (or modes) that need their own calibration.
@@ -195,6 +197,15 @@ def prepare_frames(frames: Sequence[SonarImage], config: CalibrateConfig) -> tup
     if beams[-1] > MIXED_BEAMS_RATIO * beams[0]:
         raise ConfigError(f"calibrate: frames of mixed sensors or modes ({beams[0]} to {beams[-1]} beams) and no way "
                           "to group them; calibrate each sensor's recording separately (e.g. --match RECORDING)")
+    smallest = min(frames, key=lambda f: f.n_ranges * f.n_beams)
+    if smallest.n_ranges < MIN_GRID[0] or smallest.n_beams < MIN_GRID[1]:
+        raise ConfigError(f"calibrate: {smallest.meta.get('source', 'a frame')} is {smallest.n_ranges} ranges x "
+                          f"{smallest.n_beams} beams; a calibration needs frames of at least {MIN_GRID[0]} x "
+                          f"{MIN_GRID[1]}")
+    lit = sum(1 for f in frames if np.any(f.intensity > 0))
+    if lit < MIN_FRAMES:
+        raise ConfigError(f"calibrate: only {lit} of {len(frames)} frame(s) hold any echo (the rest are blank); a "
+                          f"calibration needs at least {MIN_FRAMES} frames with echoes")
     notes: set[str] = set()
     out = []
     for frame in frames:
@@ -1085,30 +1096,12 @@ def _seabed_intervals(stats: np.ndarray, look: SeabedLook, real: SeabedStats, rn
 # ----------------------------------------------------------------------------------------------- CLI
 
 
-def load_recording(path: str | Path, match: str | None = None, limit: int | None = None) -> list[SonarImage]:
-    """Frames of `path` (anything read_frames reads); `match` keeps frames whose source name contains it."""
-    from sonar_realism.io import read_frames
-
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"--real {path}: no such file or folder")
-    frames = list(read_frames(path))
-    if not frames and path.is_dir():  # a data set split into folders (train/images, val/images): read each
-        folders = sorted(p for p in path.rglob("*") if p.is_dir())
-        frames = sorted((f for folder in folders for f in read_frames(folder)),
-                        key=lambda f: str(f.meta.get("source", "")))
-    frames = [f for f in frames if match is None or match in str(f.meta.get("source", ""))]
-    if limit and len(frames) > limit:
-        frames = frames[:: max(1, len(frames) // limit)][:limit]
-    return frames
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--real", required=True, help="the recording: any file or folder read_frames reads")
     parser.add_argument("--out", required=True, help="the calibration file to write (CALIB.json)")
     parser.add_argument("--report", help="HTML report to write (default: beside --out, .html)")
     parser.add_argument("--match", help="only frames whose source name contains this (e.g. one recording's name)")
-    parser.add_argument("--limit", type=int, help="use at most this many frames, evenly spaced")
+    parser.add_argument("--limit", type=positive_int, help="use at most this many frames, evenly spaced")
     parser.add_argument("--vertical-fov", type=float, default=CalibrateConfig.vertical_fov_deg,
                         help="vertical aperture in degrees (not in recordings; default 20, Oculus; ARIS 3000: 14)")
     parser.add_argument("--fov", type=float, default=CalibrateConfig.default_fov_deg,
@@ -1119,7 +1112,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rounds", type=int, default=CalibrateConfig.rounds, help="effect pattern-search rounds")
     parser.add_argument("--effect-bootstrap", type=int, default=CalibrateConfig.effect_bootstrap,
                         help="bootstrap refits for the effect-parameter intervals (default 4; 0: none)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--texture", choices=TEXTURES, default=CalibrateConfig.texture,
                         help="the simulated texture. learned (default): generators trained on the simulated "
                              "levels against the recording (about 12 minutes, one thread each); speckle: the "
@@ -1138,12 +1131,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sonar_realism.io import load_recording
     from sonar_realism.sim.calibration_report import write_report
 
     config = CalibrateConfig(vertical_fov_deg=args.vertical_fov, default_fov_deg=args.fov,
                              default_range_bin_m=args.range_bin, sim_frames=args.sim_frames, rounds=args.rounds,
                              effect_bootstrap=args.effect_bootstrap, seed=args.seed, texture=args.texture,
                              learned_steps=args.texture_steps, learned_generators=args.texture_generators)
+    out = output_file(args.out, "--out")
+    report = output_file(args.report or out.with_suffix(".html"), "--report")
     frames = load_recording(args.real, args.match, args.limit)
     if args.target_classes and not args.targets_from:
         raise ConfigError("--target-classes needs --targets-from (the folders of the annotations)")
@@ -1152,10 +1148,7 @@ def run(args: argparse.Namespace) -> int:
                    if args.targets_from else None)
     source = Path(args.real).name + (f" [{args.match}]" if args.match else "")
     result = calibrate(frames, source, config, log=sys.stderr, annotations=annotations)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     save_calibration(result.calibration, out)
-    report = Path(args.report) if args.report else out.with_suffix(".html")
     write_report(result, report)
     print(f"wrote {out} and {report}", file=sys.stderr)
     return 0

@@ -21,12 +21,12 @@ import json
 import shlex
 import sys
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
+from sonar_realism.arguments import non_negative_int, output_folder, positive_int
 from sonar_realism.config import to_dict
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
@@ -51,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                           "with --calibration all, calibrated)")
     parser.add_argument("--n", type=int, default=24, help="number of frames (default 24)")
     parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the world and the per-ping draws (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0,
+                        help="seed of the world and the per-ping draws (default 0)")
     parser.add_argument("--param", action="append", default=[], metavar="EFFECT.NAME=VALUE",
                         help="override an effect parameter, e.g. speckle.shape_nu=3 (repeatable)")
     parser.add_argument("--sensor", default="m1200d_1200khz", choices=sorted(SENSORS),
@@ -62,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dtype", default="float32", choices=STORAGE_DTYPES,
                         help="storage of frames without gamma_quantization: float32 amplitude, or uint16 "
                              "(amplitude * 65535, compact lossless PNG); 8-bit output comes from gamma_quantization")
-    parser.add_argument("--workers", type=int, default=1,
+    parser.add_argument("--workers", type=positive_int, default=1,
                         help="render frames on this many processes (same frames, same order; default 1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     sensor = sensor_from_args(args)
     params = parse_params(args.param)
     effects = resolve_effects(args.effects, params)  # validates names and parameters before any work
-    out = Path(args.out)
+    out = output_folder(args.out, "--out")
 
     world = build_scene(args.scene, args.seed, sensor.max_range_m)
     poses = world.trajectory(args.n)
@@ -141,7 +142,7 @@ def run_calibrated(args: argparse.Namespace) -> int:
         raise ConfigError(f"unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}")
     params = parse_params(args.param)
     chain = calibrated_chain(calibration, args.effects or "all", params)
-    out = Path(args.out)
+    out = output_folder(args.out, "--out")
     objects: list[list[dict[str, Any]]] = []
     poses: list[dict[str, float]] = []
 
