@@ -25,6 +25,10 @@ def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ConfigError(f"{name}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(fields))}")
+    missing = [key for key, f in fields.items() if key not in data and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ConfigError(f"{name}: missing key(s) {', '.join(missing)}")
     hints = typing.get_type_hints(cls)
     kwargs = {key: _convert(hints[key], value, f"{name}.{key}") for key, value in data.items()}
     try:

@@ -43,3 +43,16 @@ def test_round_trip():
 def test_rejects_bad_configs(data, message):
     with pytest.raises(ConfigError, match=message):
         from_dict(Outer, data)
+
+
+@dataclass(frozen=True)
+class Record:
+    version: int
+    effects: dict
+    note: str = ""
+
+
+def test_missing_required_keys_are_named():
+    with pytest.raises(ConfigError, match=r"CALIB: missing key\(s\) effects$"):
+        from_dict(Record, {"version": 1}, where="CALIB")
+    assert from_dict(Record, {"version": 1, "effects": {}}).note == ""

@@ -147,6 +147,8 @@ def test_unknown_effect_lists_the_known_ones() -> None:
         resolve_effects(["speckle", "speckle"])
     with pytest.raises(ConfigError, match="not selected"):
         resolve_effects("speckle", {"tvg_noise": {"noise_amplitude": 0.1}})
+    with pytest.raises(ConfigError, match="unknown effect.*bogus; known effects: "):
+        resolve_effects("speckle", {"bogus": {"x": 3.0}})
 
 
 def test_speckle_is_multiplicative_power_preserving_and_k_distributed() -> None:

@@ -894,6 +894,10 @@ def resolve_effects(spec: str | Sequence[str | Effect] | None, overrides: dict[s
             effects.append(make_effect(item, **overrides.pop(item, {})))
         else:
             raise ConfigError(f"effects: expected names or effect instances, got {type(item).__name__}")
+    unknown = sorted(name for name in overrides if name not in EFFECTS)
+    if unknown:
+        raise ConfigError(f"parameters given for unknown effect(s) {', '.join(unknown)}; known effects: "
+                          f"{', '.join(PIPELINE_ORDER)}")
     if overrides:
         raise ConfigError(f"parameters given for effect(s) not selected: {', '.join(sorted(overrides))}")
     names = [e.name for e in effects]
