@@ -83,7 +83,7 @@ def load_recording(path: str | Path, match: str | None = None, limit: int | None
         # a frames folder's own frames/ and geometry/ are read with it, not again as folders of images
         folders = sorted(p for p in path.rglob("*") if p.is_dir()
                          and not any(folder.is_frames_folder(up) for up in p.parents if path in up.parents))
-        frames = sorted((f for folder in folders for f in read_frames(folder)),
+        frames = sorted((f for sub in folders for f in read_frames(sub)),
                         key=lambda f: str(f.meta.get("source", "")))
     frames = [f for f in frames if match is None or match in str(f.meta.get("source", ""))]
     if limit and len(frames) > limit:
