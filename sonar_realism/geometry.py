@@ -206,6 +206,10 @@ def resample_to_grid(frame: SonarImage, n_ranges: int, n_beams: int) -> SonarIma
     """
     if n_ranges < 1 or n_beams < 1:
         raise FrameError(f"resample_to_grid: grid must be at least 1×1, got {n_ranges}×{n_beams}")
+    if (frame.n_ranges == 1 < n_ranges) or (frame.n_beams == 1 < n_beams):
+        raise FrameError(f"resample_to_grid: {frame.meta.get('source', f'frame seq {frame.seq}')} is "
+                         f"{frame.n_ranges} range(s) x {frame.n_beams} beam(s); a single range bin or beam cannot be "
+                         f"spread over the {n_ranges} x {n_beams} grid")
     ranges = _uniform_span(frame.ranges_m, n_ranges)
     azimuths = _uniform_span(frame.azimuths_rad, n_beams)
     return _resample(frame, ranges, azimuths)
@@ -219,8 +223,6 @@ def resample_like(frame: SonarImage, reference: SonarImage) -> SonarImage:
 def _uniform_span(table: np.ndarray, n: int) -> np.ndarray:
     if n == 1:
         return np.array([0.5 * (table[0] + table[-1])])
-    if table.shape[0] == 1:
-        raise FrameError("resample_to_grid: cannot spread a single range bin or beam over several")
     return np.linspace(table[0], table[-1], n)
 
 

@@ -91,3 +91,14 @@ def test_an_operating_system_refusal_is_a_message_not_a_traceback(tmp_path, caps
     code = main(["inspect", str(tmp_path / "frames" / "frames.jsonl" / "x")])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("effect_bootstrap", -1, "effect_bootstrap must be 0 or more, got -1"),
+    ("default_fov_deg", 720.0, "default_fov_deg must be in 1..179"),
+    ("learned_steps", 0, "learned_steps must be 1 or more, got 0")])
+def test_a_calibration_setting_out_of_range_is_named(field, value, message):
+    from sonar_realism.sim.calibrate import CalibrateConfig
+
+    with pytest.raises(ConfigError, match=message):
+        CalibrateConfig(**{field: value}).validate()

@@ -141,3 +141,11 @@ def test_big_endian_frames_resample_and_fan_like_native_ones(dtype):
     np.testing.assert_array_equal(geo.resample_to_grid(big, 30, 16).intensity,
                                   geo.resample_to_grid(little, 30, 16).intensity)
     np.testing.assert_array_equal(geo.polar_to_fan(big, 64), geo.polar_to_fan(little, 64))
+
+
+def test_a_single_beam_cannot_be_spread_and_the_error_names_the_frame():
+    frame = SonarImage(np.ones((1, 1), np.uint8), np.array([2.0]), np.array([0.0]), seq=4,
+                       meta={"source": "tiny.png"})
+    with pytest.raises(FrameError, match=r"tiny\.png is 1 range\(s\) x 1 beam\(s\)"):
+        geo.resample_to_grid(frame, 8, 8)
+    assert geo.resample_to_grid(frame, 1, 1).intensity.shape == (1, 1)

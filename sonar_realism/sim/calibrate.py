@@ -163,18 +163,21 @@ class CalibrateConfig:
     learned_generators: int = 2
 
     def validate(self) -> None:
-        if not 0.5 <= self.vertical_fov_deg <= 90 or not 1 <= self.default_fov_deg <= 179:
-            raise ConfigError("calibrate: vertical_fov_deg must be in 0.5..90 and default_fov_deg in 1..179")
-        if not 1e-4 <= self.default_range_bin_m <= 1.0:
-            raise ConfigError(f"calibrate: default_range_bin_m {self.default_range_bin_m} outside 1e-4..1 m")
-        if (self.sim_frames < 2 or self.mounting_frames < 2 or self.rounds < 1 or self.bootstrap < 2
-                or self.effect_bootstrap < 0):
-            raise ConfigError("calibrate: need sim_frames >= 2, mounting_frames >= 2, rounds >= 1, bootstrap >= 2, "
-                              "effect_bootstrap >= 0")
-        if self.texture not in TEXTURES or self.learned_steps < 1 or self.learned_generators < 1:
-            raise ConfigError(f"calibrate: texture {self.texture!r} must be one of {', '.join(TEXTURES)}, "
-                              f"learned_steps ({self.learned_steps}) >= 1 and learned_generators "
-                              f"({self.learned_generators}) >= 1")
+        ranges = {"vertical_fov_deg": (self.vertical_fov_deg, 0.5, 90.0),
+                  "default_fov_deg": (self.default_fov_deg, 1.0, 179.0),
+                  "default_range_bin_m": (self.default_range_bin_m, 1e-4, 1.0)}
+        least = {"sim_frames": (self.sim_frames, 2), "mounting_frames": (self.mounting_frames, 2),
+                 "rounds": (self.rounds, 1), "bootstrap": (self.bootstrap, 2),
+                 "effect_bootstrap": (self.effect_bootstrap, 0), "learned_steps": (self.learned_steps, 1),
+                 "learned_generators": (self.learned_generators, 1)}
+        for name, (value, low, high) in ranges.items():
+            if not low <= value <= high:
+                raise ConfigError(f"calibrate: {name} must be in {low:g}..{high:g}, got {value}")
+        for name, (value, low) in least.items():
+            if value < low:
+                raise ConfigError(f"calibrate: {name} must be {low} or more, got {value}")
+        if self.texture not in TEXTURES:
+            raise ConfigError(f"calibrate: texture {self.texture!r} must be one of {', '.join(TEXTURES)}")
 
 
 @dataclass(frozen=True)
