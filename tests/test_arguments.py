@@ -102,3 +102,14 @@ def test_a_calibration_setting_out_of_range_is_named(field, value, message):
 
     with pytest.raises(ConfigError, match=message):
         CalibrateConfig(**{field: value}).validate()
+
+
+def test_cyclegan_only_flags_and_an_empty_sim_are_refused_for_the_cdfcvae(tmp_path, capsys):
+    write_frames(_frames(4), tmp_path / "real")
+    for extra, message in ((["--crop", "64"], "--crop: for --model cyclegan only"),
+                           (["--epochs", "3"], "--epochs: for --model cyclegan only"),
+                           (["--sim", ""], "--sim: empty")):
+        code = main(["train", "--real", str(tmp_path / "real"), "--out", str(tmp_path / "run"), *extra])
+        assert code == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()

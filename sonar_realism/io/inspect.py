@@ -11,6 +11,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from sonar_realism.arguments import positive_int
 from sonar_realism.frames import SonarImage
 from sonar_realism.io import read_frames, sniff
 from sonar_realism.io.report import ReadReport
@@ -21,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                      "PNG/TIFF, ROS 1 bag, ROS 2 bag folder, MCAP")
     parser.add_argument("--topic", help="ROS bags: the sonar topic (default: the one found by message type)")
     parser.add_argument("--json", action="store_true", help="print one JSON document instead of a table")
-    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
+    parser.add_argument("--max-frames", type=positive_int, default=None, metavar="N",
                         help="stop after N frames (default: read the whole recording)")
     parser.add_argument("--quiet", action="store_true", help="summary only, no per-frame lines")
 

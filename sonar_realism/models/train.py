@@ -549,7 +549,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="run folder (checkpoint, state, curves)")
     parser.add_argument("--epochs1", type=int, help="cdfcvae: cycle-1 epoch limit (default 80)")
     parser.add_argument("--epochs2", type=int, help="cdfcvae: cycle-2 epoch limit (default 60)")
-    parser.add_argument("--epochs", type=int, default=200, help="cyclegan: epochs (default 200)")
+    parser.add_argument("--epochs", type=int, help="cyclegan: epochs (default 200)")
     parser.add_argument("--crop", type=int, help="cyclegan: train on CROP x CROP crops of the frames at their own "
                                                  "resolution (its authors' recipe) instead of on --grid")
     parser.add_argument("--save-every", type=int, default=1, help="cyclegan: write the checkpoint every N epochs "
@@ -595,7 +595,14 @@ def run(args: argparse.Namespace) -> int:
 
         args.batch_size = args.batch_size or 1
         args.seed = args.seed if args.seed is not None else 0
+        args.epochs = args.epochs if args.epochs is not None else 200
         return train(args)
+    cyclegan_only = [flag for flag, given in (("--crop", args.crop), ("--epochs", args.epochs is not None)) if given]
+    if cyclegan_only:
+        raise ConfigError(f"{' and '.join(cyclegan_only)}: for --model cyclegan only (the cDFCVAE trains on --grid "
+                          f"for --epochs1 and --epochs2)")
+    if args.sim is not None and not args.sim.strip():
+        raise ConfigError("--sim: empty; name the simulated frames, or leave --sim out to run cycle 1 only")
     cfg = config_from_args(args)
     started = time.monotonic()
     result = fit(cfg, args.real, args.sim, args.out, device=args.device, resume=args.resume, cycle1=args.cycle1)
