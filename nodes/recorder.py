@@ -42,6 +42,8 @@ class RecorderNode(Node):
         self.recording = Recording(path, sheet, sheet_tiles=p.sheet_tiles, fan_width_px=p.fan_width_px)
 
     def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        for frame in frames:  # the whole batch first: a batch with a bad frame is retried frame by frame
+            self.recording.check(frame)
         for frame in frames:
             self.recording.add(frame)
 

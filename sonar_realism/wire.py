@@ -11,6 +11,7 @@ This module does not import zmq: it works on anything that exposes the buffer pr
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 import time
@@ -188,6 +189,11 @@ def _decode_frame_body(topic: str, header: dict, data: Any) -> SonarImage:
         if type(provenance) is not dict:
             raise WireError("provenance", f"expected a map, got {type(provenance).__name__}", topic)
         meta = {**meta, "provenance": provenance}
+    try:  # a recorder writes every frame's meta as JSON: what JSON cannot hold must not get that far
+        json.dumps(meta, allow_nan=False)
+    except (TypeError, ValueError) as error:
+        raise WireError("meta", f"not JSON-like ({error}); meta holds maps, lists, strings, finite numbers, "
+                                f"booleans and nulls", topic) from error
     scale = header.get("intensity_scale", 0.0)
     if type(scale) not in _NUMBER_TYPES:
         raise WireError("intensity_scale", f"expected a number, got {scale!r}", topic)

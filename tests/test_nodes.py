@@ -191,6 +191,17 @@ def test_recording_is_lossless_and_draws_a_contact_sheet(tmp_path, name):
     assert sheet is not None and sheet.shape[1] >= 4 * 64 and sheet.std() > 0  # 4 tiles (every 2nd frame)
 
 
+def test_a_frame_whose_meta_cannot_be_written_is_refused_alone(tmp_path):
+    from sonar_realism.errors import FrameError
+
+    recording = Recording(tmp_path / "frames", None)
+    recording.add(frame(0, 0.1))
+    with pytest.raises(FrameError, match="meta: frame seq 1"):
+        recording.add(frame(1, 0.2).replace(meta={"sound_speed_mps": float("nan")}))
+    recording.add(frame(2, 0.3))
+    assert recording.close()["frames"] == 2
+    assert [f.seq for f in read_frames(tmp_path / "frames")] == [0, 2]
+
 def test_a_single_sample_axis_is_translated_and_several_samples_are_refused(translator):
     from sonar_realism.errors import FrameError
 

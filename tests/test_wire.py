@@ -245,6 +245,15 @@ def test_extension_types_are_rejected_wherever_they_sit(meta):
     assert (caught.value.topic, caught.value.field) == ("t", "header")
 
 
+
+@pytest.mark.parametrize("meta", [{"sound_speed_mps": float("nan")}, {"gain": float("inf")}, {"raw": b"\x00\x01"},
+                                  {"nested": [1.0, {"deeper": float("-inf")}]}],
+                         ids=["nan", "inf", "bytes", "nested-inf"])
+def test_meta_a_recorder_could_not_write_as_json_is_rejected_on_arrival(meta):
+    with pytest.raises(WireError, match="not JSON-like") as caught:
+        decode_message([b"t", header_of(FRAME, meta=meta), DATA])
+    assert (caught.value.topic, caught.value.field) == ("t", "meta")
+
 # Every encoding msgpack decodes as a timestamp (-1): fixext 4/8 and ext 8/16/32 with 4, 8 or 12 data bytes,
 # the long forms being what a publisher's library may write. `seq` is the last key, so the header's map is complete.
 _TIMESTAMPS = {"fixext4": b"\xd6\xff" + bytes(4), "fixext8": b"\xd7\xff" + bytes(8),

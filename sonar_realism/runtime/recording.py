@@ -8,6 +8,7 @@ without knowing its length: every k-th frame, with k doubling whenever the sheet
 
 from __future__ import annotations
 
+import json
 import queue
 import threading
 from pathlib import Path
@@ -15,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from sonar_realism.errors import FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import polar_to_fan
 from sonar_realism.io import write_frames
+from sonar_realism.io.common import json_default
 from sonar_realism.plots import image_grid
 
 _END = object()
@@ -41,8 +44,18 @@ class Recording:
         self._writer = threading.Thread(target=self._write, name=f"recorder:{self.path.name}", daemon=True)
         self._writer.start()
 
+    @staticmethod
+    def check(frame: SonarImage) -> None:
+        """FrameError if `frame` cannot be written (its meta is not JSON-able): checked before a frame is queued,
+        so one bad frame is refused alone instead of stopping the writer and every frame after it."""
+        try:
+            json.dumps(frame.meta, default=json_default, allow_nan=False)
+        except (TypeError, ValueError) as error:
+            raise FrameError(f"meta: frame seq {frame.seq} meta is not JSON-able ({error})") from error
+
     def add(self, frame: SonarImage) -> None:
         self._raise_writer_error()
+        self.check(frame)
         # Received frames are views over ZeroMQ buffers: copy once so the writer owns what it holds.
         frame = frame.replace(intensity=np.array(frame.intensity))
         self._backlog.put(frame)
