@@ -329,11 +329,14 @@ def test_frames_on_a_topic_nobody_takes_are_counted_not_lost_silently(context, c
     assert publisher.poll(JOIN_TIMEOUT_S * 1000) and publisher.recv()[0] == 1  # the sink has subscribed
     for seq, topic in enumerate(["sonar/sim", "sonar/sim2", "sim", "sonar/sim"]):
         publisher.send_multipart(encode_frame(tiny_frame(seq), topic))
+    # the publisher's own telemetry in a format of its own, on another topic: not ours to call malformed
+    publisher.send_multipart([b"sim/telemetry", b'{"battery": 0.8}'])
     publisher.send_multipart(end_of_stream_message("sonar/sim", "sim", "finished"))
     thread.join(JOIN_TIMEOUT_S)
     publisher.close(linger=0)
     assert [f.seq for f in sink.frames] == [0, 3]
-    assert sink.status()["other_topic"] == 2 and "frames on topic 'sonar/sim2' are ignored" in caplog.text
+    assert sink.status()["other_topic"] == 3 and sink.status()["malformed"] == 0
+    assert "frames on topic 'sonar/sim2' are ignored" in caplog.text
 
 
 def wait_until(condition, timeout_s: float = JOIN_TIMEOUT_S) -> None:

@@ -688,7 +688,12 @@ class Node:
             try:
                 message = decode_message(parts)
             except WireError as error:
-                self._reject(input_name, f"malformed message: {error}")
+                if state.wiring.socket_kind == "sub" and error.topic not in (None, state.wiring.topic):
+                    # an external publisher is heard on every topic: its own traffic on another (telemetry in a
+                    # format of its own) is not ours to judge
+                    self._count_other_topic(input_name, error.topic)
+                else:
+                    self._reject(input_name, f"malformed message: {error}")
                 continue
             if message.topic != state.wiring.topic:
                 if message.kind == FRAME_TYPE:
