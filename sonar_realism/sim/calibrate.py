@@ -1141,6 +1141,7 @@ def run(args: argparse.Namespace) -> int:
                              default_range_bin_m=args.range_bin, sim_frames=args.sim_frames, rounds=args.rounds,
                              effect_bootstrap=args.effect_bootstrap, seed=args.seed, texture=args.texture,
                              learned_steps=args.texture_steps, learned_generators=args.texture_generators)
+    config.validate()
     out = output_file(args.out, "--out")
     report = output_file(args.report or out.with_suffix(".html"), "--report")
     frames = load_recording(args.real, args.match, args.limit)
