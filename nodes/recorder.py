@@ -39,7 +39,8 @@ class RecorderNode(Node):
         p: RecorderParams = self.params
         path = Path(p.path)
         sheet = Path(p.contact_sheet) if p.contact_sheet else path.with_name(path.stem + ".contact_sheet.png")
-        self.recording = Recording(path, sheet, sheet_tiles=p.sheet_tiles, fan_width_px=p.fan_width_px)
+        self.recording = Recording(path, sheet, sheet_tiles=p.sheet_tiles, fan_width_px=p.fan_width_px,
+                                   resume=self.restarted)
 
     def process(self, input_name: str, frames: list[SonarImage]) -> None:
         for frame in frames:  # the whole batch first: a batch with a bad frame is retried frame by frame
@@ -49,6 +50,7 @@ class RecorderNode(Node):
 
     def finish(self) -> None:
         summary = self.recording.close()
+        summary["already_written"] = self.recording.already_written  # sent again after a restart, skipped
         summary["status"] = self.status()
         Path(str(self.recording.path) + ".summary.json").write_text(json.dumps(summary, indent=2))
         log.info("recorder %s: %d frames -> %s", self.name, summary["frames"], summary["path"])

@@ -211,3 +211,17 @@ def test_a_single_sample_axis_is_translated_and_several_samples_are_refused(tran
     np.testing.assert_array_equal(stage([with_axis])[0].intensity, stage([plain])[0].intensity)
     with pytest.raises(FrameError, match="samples"):
         stage([frame(4, samples=2)])
+
+
+def test_a_restarted_recording_goes_on_after_what_is_on_disk(tmp_path):
+    write_frames([frame(i, 0.1) for i in range(5)], tmp_path / "frames")
+    index = tmp_path / "frames" / "frames.jsonl"
+    index.write_bytes(index.read_bytes() + b'{"file": "frames/0000')  # a last line cut short by a SIGKILL
+    recording = Recording(tmp_path / "frames", None, resume=True)
+    for i in range(3, 8):  # 3 and 4 come again over a lossless edge: written before the crash, not acknowledged
+        recording.add(frame(i, 0.2))
+    assert recording.close()["frames"] == 8 and recording.already_written == 2
+    assert [f.seq for f in read_frames(tmp_path / "frames")] == list(range(8))
+    fresh = Recording(tmp_path / "frames", None)  # not a restart: the folder is written anew
+    fresh.add(frame(9, 0.3))
+    assert fresh.close()["frames"] == 1 and [f.seq for f in read_frames(tmp_path / "frames")] == [9]

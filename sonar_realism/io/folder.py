@@ -59,28 +59,59 @@ def is_frames_folder(path: Path) -> bool:
     return (path / INDEX_NAME).is_file()
 
 
-def write_frames_folder(frames: Iterable[SonarImage], path: str | Path) -> int:
-    """Write `frames` into folder `path` one by one (never holding more than one); returns the count.
+def write_frames_folder(frames: Iterable[SonarImage], path: str | Path, append: bool = False) -> int:
+    """Write `frames` into folder `path` one by one (never holding more than one); returns the count written.
 
     An index already in `path` is replaced, and the image and geometry files it listed are removed; other
-    files stay.
+    files stay. With `append`, frames are added after those the index lists instead (a recorder restarted within
+    its launch goes on with its recording); a last line cut short by a crash is dropped first.
     """
     root = Path(path)
     if root.exists() and not root.is_dir():
         raise FormatError(str(root), "path", "exists and is not a folder (name it .npz to write an NPZ)")
     (root / "frames").mkdir(parents=True, exist_ok=True)
     (root / "geometry").mkdir(exist_ok=True)
-    _remove_previous_frames(root)
+    first = listed_frames(root) if append and is_frames_folder(root) else None
+    if first is None:
+        _remove_previous_frames(root)
     written_geometries: set[str] = set()
     count = 0
-    with open(root / INDEX_NAME, "w", encoding="utf-8") as index:
-        index.write(json.dumps({"format": FORMAT_NAME, "version": FORMAT_VERSION}) + "\n")
-        index.flush()
+    with open(root / INDEX_NAME, "a" if first is not None else "w", encoding="utf-8") as index:
+        if first is None:
+            index.write(json.dumps({"format": FORMAT_NAME, "version": FORMAT_VERSION}) + "\n")
+            index.flush()
         for count, frame in enumerate(frames, start=1):
-            line = _write_one(root, count - 1, frame, written_geometries)
+            line = _write_one(root, (first or 0) + count - 1, frame, written_geometries)
             index.write(json.dumps(line, default=json_default, allow_nan=False) + "\n")
             index.flush()
     return count
+
+
+def last_seq(path: str | Path) -> int | None:
+    """The seq of the last frame a frames folder's index lists in full (None: no folder or no frame)."""
+    index_path = Path(path) / INDEX_NAME
+    if not index_path.is_file():
+        return None
+    lines = index_path.read_bytes().split(b"\n")[1:-1]  # after the header; the last piece is cut or empty
+    for line in reversed(lines):
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(entry, dict) and type(entry.get("seq")) is int:
+            return entry["seq"]
+    return None
+
+
+def listed_frames(root: str | Path) -> int:
+    """The number of frames a frames folder's index lists, after cutting a last line a crash left unfinished."""
+    index_path = Path(root) / INDEX_NAME
+    content = index_path.read_bytes()
+    whole = content[: content.rfind(b"\n") + 1]
+    if len(whole) != len(content):
+        with open(index_path, "r+b") as index:
+            index.truncate(len(whole))
+    return max(whole.count(b"\n") - 1, 0)
 
 
 def _write_one(root: Path, number: int, frame: SonarImage, written_geometries: set[str]) -> dict[str, Any]:

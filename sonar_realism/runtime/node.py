@@ -127,6 +127,9 @@ class Node:
         self.context = context or zmq.Context.instance()
         self.queues = {input_name: InputQueue(w.policy) for input_name, w in wiring.inputs.items()}
         self.session = uuid.uuid4().hex[:16]  # this instance; a restarted node is a new session
+        # set by the launcher before run(): an earlier session of this node in the same launch failed (a recorder
+        # then goes on with what that session wrote)
+        self.restarted = False
         self._inputs = {input_name: _Input(w) for input_name, w in wiring.inputs.items()}
         self.state = "starting"
         self.frames_out = 0

@@ -42,6 +42,10 @@ def use_passive_thread_pools() -> None:
         os.environ.setdefault(name, value)
 
 
+# Set to "1" by the launcher for a node it starts again after a failure (Node.restarted).
+RESTARTED_ENV = "SONAR_REALISM_RESTARTED"
+
+
 def main(argv: list[str]) -> int:
     use_passive_thread_pools()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
@@ -49,6 +53,7 @@ def main(argv: list[str]) -> int:
     node_class = resolve_node_type(spec["type"])
     params = from_dict(node_class.PARAMS, spec["params"], f"nodes.{spec['name']}.params")
     node = node_class(spec["name"], params, Wiring.from_json(spec["wiring"]))
+    node.restarted = os.environ.get(RESTARTED_ENV) == "1"
 
     def stop(signum: int, _frame: object) -> None:
         logging.getLogger(__name__).info("node %s: signal %d, stopping", spec["name"], signum)

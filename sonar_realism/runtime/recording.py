@@ -21,6 +21,7 @@ from sonar_realism.frames import SonarImage
 from sonar_realism.geometry import polar_to_fan
 from sonar_realism.io import write_frames
 from sonar_realism.io.common import json_default
+from sonar_realism.io.folder import is_frames_folder, last_seq, listed_frames, write_frames_folder
 from sonar_realism.plots import image_grid
 
 _END = object()
@@ -28,8 +29,16 @@ _END = object()
 
 class Recording:
     def __init__(self, path: str | Path, contact_sheet: str | Path | None = None, sheet_tiles: int = 16,
-                 samples_per_tile: int = 4, fan_width_px: int = 320, max_backlog: int = 64) -> None:
+                 samples_per_tile: int = 4, fan_width_px: int = 320, max_backlog: int = 64,
+                 resume: bool = False) -> None:
+        """`resume`: a frames folder already at `path` (this recorder's, before a restart) is gone on with: new
+        frames are added after it, and frames it already holds (seq up to its last one: sent again over a lossless
+        edge) are skipped and counted in `already_written`. An NPZ or MCAP file is written anew."""
         self.path = Path(path)
+        self._append = resume and is_frames_folder(self.path)
+        self._written_through = last_seq(self.path) if self._append else None
+        self._before = listed_frames(self.path) if self._append else 0
+        self.already_written = 0
         self.contact_sheet = Path(contact_sheet) if contact_sheet else None
         self.sheet_tiles = sheet_tiles
         self.samples_per_tile = samples_per_tile
@@ -56,6 +65,9 @@ class Recording:
     def add(self, frame: SonarImage) -> None:
         self._raise_writer_error()
         self.check(frame)
+        if self._written_through is not None and frame.seq <= self._written_through:
+            self.already_written += 1
+            return
         # Received frames are views over ZeroMQ buffers: copy once so the writer owns what it holds.
         frame = frame.replace(intensity=np.array(frame.intensity))
         self._backlog.put(frame)
@@ -75,7 +87,7 @@ class Recording:
             self._raise_writer_error()
             if self.contact_sheet is not None and self._kept:
                 self.draw_contact_sheet(self.contact_sheet)
-        return {"frames": self._written, "path": str(self.path),
+        return {"frames": self._before + self._written, "path": str(self.path),
                 "contact_sheet": str(self.contact_sheet) if self.contact_sheet and self._kept else None}
 
     def draw_contact_sheet(self, path: Path) -> Path:
@@ -91,7 +103,9 @@ class Recording:
 
     def _write(self) -> None:
         try:
-            self._written = write_frames(iter(self._backlog.get, _END), self.path)
+            frames = iter(self._backlog.get, _END)
+            self._written = (write_frames_folder(frames, self.path, append=True) if self._append
+                             else write_frames(frames, self.path))
         except BaseException as error:  # surfaced in the node's thread by add()/close()
             self._error = error
             while self._backlog.get() is not _END:  # keep add() from blocking on a dead writer

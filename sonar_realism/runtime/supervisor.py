@@ -19,7 +19,7 @@ import zmq
 from sonar_realism.config import to_dict
 from sonar_realism.errors import WireError
 from sonar_realism.runtime.graph import LaunchGraph, ResolvedNode
-from sonar_realism.runtime.process import node_spec
+from sonar_realism.runtime.process import RESTARTED_ENV, node_spec
 from sonar_realism.wire import STATUS_TYPE, decode_message
 
 log = logging.getLogger(__name__)
@@ -34,11 +34,12 @@ class ThreadWorker:
     """A node running as a thread of the launcher (inproc mode). Threads cannot be killed: a node that
     ignores its stop request is reported and left to die with the process (daemon thread)."""
 
-    def __init__(self, node: ResolvedNode, context: zmq.Context, run_dir: Path) -> None:
+    def __init__(self, node: ResolvedNode, context: zmq.Context, run_dir: Path, restarted: bool = False) -> None:
         self.spec = node
         self.context = context
         self.error: BaseException | None = None
         self.instance = node.node_class(node.name, node.params, node.wiring, context)
+        self.instance.restarted = restarted
         self.thread = threading.Thread(target=self._run, name=f"node:{node.name}", daemon=True)
 
     def _run(self) -> None:
@@ -77,7 +78,7 @@ class ThreadWorker:
 class ProcessWorker:
     """A node as its own OS process (process mode), logging to <run>/logs/<node>.log."""
 
-    def __init__(self, node: ResolvedNode, context: zmq.Context, run_dir: Path) -> None:
+    def __init__(self, node: ResolvedNode, context: zmq.Context, run_dir: Path, restarted: bool = False) -> None:
         self.spec = node
         spec_path = run_dir / "nodes" / f"{node.name}.json"
         spec_path.parent.mkdir(parents=True, exist_ok=True)
@@ -85,7 +86,8 @@ class ProcessWorker:
         log_path = run_dir / "logs" / f"{node.name}.log"
         log_path.parent.mkdir(parents=True, exist_ok=True)
         self.log_file = open(log_path, "ab")  # noqa: SIM115 - closed in wait()/when the process ends
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p),
+               RESTARTED_ENV: "1" if restarted else "0"}
         self.command = [sys.executable, "-m", "sonar_realism.runtime.process", str(spec_path)]
         self.env = env
         self.process: subprocess.Popen | None = None
@@ -170,7 +172,7 @@ class Supervisor:
             self._status_socket.close()
 
     def _start(self, name: str) -> None:
-        worker = self.worker_class(self.graph.nodes[name], self.context, self.run_dir)
+        worker = self.worker_class(self.graph.nodes[name], self.context, self.run_dir, self.restarts[name] > 0)
         worker.start()
         self.workers[name] = worker
         log.info("started %s (%s)", name, self.graph.nodes[name].type)
