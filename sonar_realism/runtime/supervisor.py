@@ -137,7 +137,8 @@ class Supervisor:
         self.run_dir = run_dir
         self.context = context or zmq.Context.instance()
         self.worker_class = ThreadWorker if graph.settings.mode == "inproc" else ProcessWorker
-        self._told_producers_ended: set[int] = set()  # ids of workers already told
+        self._told_producers_ended: set[tuple[str, int]] = set()  # (node, restart) already told
+        self._sessions_at_start: dict[str, int] = {}  # sessions heard from a node when it was last started
         self.workers: dict[str, ThreadWorker | ProcessWorker] = {}
         self.restarts: dict[str, int] = dict.fromkeys(graph.nodes, 0)
         self.exit_codes: dict[str, int] = {}
@@ -173,6 +174,7 @@ class Supervisor:
 
     def _start(self, name: str) -> None:
         worker = self.worker_class(self.graph.nodes[name], self.context, self.run_dir, self.restarts[name] > 0)
+        self._sessions_at_start[name] = len(self.sessions[name])
         worker.start()
         self.workers[name] = worker
         log.info("started %s (%s)", name, self.graph.nodes[name].type)
@@ -207,12 +209,16 @@ class Supervisor:
         return False
 
     def _tell_consumers_whose_producers_ended(self) -> None:
-        """Only a restarted node can have lost its end of stream (in flight when it crashed); tell it."""
+        """Only a restarted node can have lost its end of stream (in flight when it crashed); tell it, once its new
+        session has reported (before, a process has not yet set up its signal handlers, and the signal's default
+        action would end it)."""
         for name, worker in self.workers.items():
             node = self.graph.nodes[name]
-            if (node.producers and self.restarts[name] and id(worker) not in self._told_producers_ended
+            start = (name, self.restarts[name])
+            if (node.producers and self.restarts[name] and start not in self._told_producers_ended
+                    and len(self.sessions[name]) > self._sessions_at_start[name]
                     and name not in self.exit_codes and all(p in self.exit_codes for p in node.producers)):
-                self._told_producers_ended.add(id(worker))
+                self._told_producers_ended.add(start)
                 worker.producers_finished()
 
     def _shutdown(self) -> None:
