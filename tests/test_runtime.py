@@ -164,6 +164,25 @@ def test_seq_tracker_counts_gaps_and_out_of_order_frames():
     assert tracker.out_of_order == 1
 
 
+def test_a_source_that_starts_its_seq_again_is_followed_not_counted_late_for_ever():
+    tracker = SeqTracker()
+    for seq in (500, 501, 0, 1, 2, 3):  # a simulator restarted at 0
+        tracker.observe(seq)
+    assert (tracker.gaps, tracker.out_of_order) == (0, 1)
+    for seq in (4, (1 << 64) - 3, (1 << 64) - 2):  # a counter of its own: no gap of billions
+        tracker.observe(seq)
+    assert (tracker.gaps, tracker.out_of_order) == (0, 2)
+
+
+def test_a_status_with_counters_past_uint64_is_still_sent(context):
+    from sonar_realism.wire import decode_message, encode_status
+
+    _, sink = pair(context, InputPolicy("fifo"), SourceParams(count=1))
+    sink.queues["frames"].seq.gaps = 1 << 70  # sums of a client's wild seqs
+    parts = encode_status("sink/status", sink.status())
+    assert decode_message(parts).body["seq_gaps"] == (1 << 64) - 1
+
+
 def test_bad_policy_is_a_config_error():
     from sonar_realism.errors import ConfigError
 

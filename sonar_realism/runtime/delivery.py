@@ -49,6 +49,13 @@ class InputPolicy:
         return 1 if self.policy == "latest" else self.capacity
 
 
+# A seq further back than a network reorders frames, or further ahead than a stream drops them, is a source that
+# started again (a simulator restarted at 0, a counter of its own): counted once as out of order and followed from
+# there, instead of every later frame counting as late or a jump counting as a gap of billions.
+REORDER_WINDOW = 64
+MAX_GAP = 1 << 20
+
+
 class SeqTracker:
     """Counts frames missing from a stream (gaps in `seq`) and frames arriving out of order."""
 
@@ -58,6 +65,10 @@ class SeqTracker:
         self.out_of_order = 0
 
     def observe(self, seq: int) -> None:
+        if self.last is not None and not self.last - REORDER_WINDOW <= seq <= self.last + 1 + MAX_GAP:
+            self.out_of_order += 1
+            self.last = seq
+            return
         if self.last is not None:
             if seq > self.last + 1:
                 self.gaps += seq - self.last - 1

@@ -65,6 +65,7 @@ _WARN_FIRST = 20  # rejections logged one by one per input; after that every _WA
 _WARN_EVERY = 1000
 # What process() may raise about one frame (its content), as opposed to a fault of the node itself.
 _FRAME_FAULTS = (SonarRealismError, ValueError)
+_COUNTER_MAX = (1 << 64) - 1
 
 
 def end_of_stream_message(topic: str, node: str, reason: str) -> list:
@@ -225,7 +226,7 @@ class Node:
         queues = self.queues.values()
         buffers = self._buffers()
         syncs = [i.sync for i in self._inputs.values() if i.sync is not None]
-        return {
+        counters = {
             "node": self.name,
             "state": self.state,
             "session": self.session,
@@ -246,6 +247,9 @@ class Node:
             "inference_ms": self._inference_ms_total / self._inference_frames if self._inference_frames else 0.0,
             "queued": {name: len(q) for name, q in self.queues.items()},
         }
+        # a status the wire cannot carry would end the node: a counter past uint64 (sums of a client's wild seqs)
+        # is reported at the largest value it can hold
+        return {key: min(value, _COUNTER_MAX) if type(value) is int else value for key, value in counters.items()}
 
     def _send_status(self) -> None:
         if self._status_socket is None:
