@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from sonar_realism.errors import ConfigError
+from sonar_realism.errors import ConfigError, FrameError
 from sonar_realism.frames import SonarImage
 from sonar_realism.runtime.node import Node
 from sonar_realism.runtime.translation import TranslationStage
@@ -21,10 +21,14 @@ class TranslatorParams:
     seed: int = -1            # -1 = fresh randomness; >= 0 = reproducible (seed + seq of the batch's first frame)
     batch: int = 4            # most frames per model call (a backlog is translated in batches)
     device: str = "auto"      # "auto", "cpu", "cuda", "cuda:1", ...
+    # largest input frame, in pixels (the model works on about 310 bytes of memory per input pixel at its peak):
+    # a bigger one is refused as malformed instead of taking the machine's memory
+    max_pixels: int = 16_777_216
 
     def validate(self) -> None:
-        if self.n < 1 or self.batch < 1:
-            raise ConfigError(f"translator: n ({self.n}) and batch ({self.batch}) must be >= 1")
+        if self.n < 1 or self.batch < 1 or self.max_pixels < 1:
+            raise ConfigError(f"translator: n ({self.n}), batch ({self.batch}) and max_pixels ({self.max_pixels}) "
+                              f"must be >= 1")
         if not 0 <= self.temperature < math.inf:
             raise ConfigError(f"translator: temperature must be a number >= 0, got {self.temperature}")
         if self.checkpoint and not Path(self.checkpoint).is_file():
@@ -48,6 +52,10 @@ class TranslatorNode(Node):
         self.batch_size = p.batch
 
     def process(self, input_name: str, frames: list[SonarImage]) -> None:
+        for frame in frames:
+            if frame.intensity.size > self.params.max_pixels:
+                raise FrameError(f"intensity: frame seq {frame.seq} has {frame.intensity.size} pixels, more than "
+                                 f"the translator's max_pixels ({self.params.max_pixels})")
         outputs = self.stage(frames)
         self.record_inference(self.stage.last_ms, len(frames))
         for frame in outputs:

@@ -447,3 +447,24 @@ def test_a_recorder_killed_mid_run_goes_on_with_its_recording(tmp_path):
     assert seqs[:before] == list(range(before))  # what was on disk before the kill is still there
     assert seqs == sorted(set(seqs)) and seqs[-1] == count - 1
     assert len(seqs) >= count - 100  # at most the writer's backlog and one batch were queued and not written
+
+
+def test_a_frame_larger_than_the_translators_bound_is_refused_alone(tmp_path):
+    from test_nodes import tiny_checkpoint
+
+    sizes = [(32, 16), (64, 64), (32, 16)]  # the middle one is 4096 pixels, over a bound of 1024
+    frames = (SonarImage(np.full(shape, 9, np.uint8), uniform_ranges(shape[0], 5.0), uniform_azimuths(shape[1], 1.0),
+                         seq=i) for i, shape in enumerate(sizes))
+    write_frames(frames, tmp_path / "rec")
+    run = tmp_path / "run"
+    graph = build_graph({"launch": {"name": "bound", "mode": "inproc", "out": str(run)},
+                         "nodes": {"replay": {"type": "file_replay", "params": {"path": str(tmp_path / "rec"),
+                                                                                "speed": 0.0}},
+                                   "translator": {"type": "translator", "inputs": {"frames": "replay.frames"},
+                                                  "params": {"checkpoint": tiny_checkpoint(tmp_path), "n": 1,
+                                                             "seed": 0, "device": "cpu", "max_pixels": 1024}},
+                                   "recorder": {"type": "recorder", "inputs": {"frames": "translator.frames"},
+                                                "params": {"path": "{out}/translated"}}}})
+    code, summary = launch(graph, install_signal_handlers=False)
+    assert code == 0 and summary["translator"]["totals"]["malformed"] == 1
+    assert [f.seq for f in read_frames(run / "translated")] == [0, 2]
