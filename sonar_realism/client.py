@@ -1,7 +1,8 @@
 """Thin ZeroMQ client for simulators and scripts: publish or receive frames in the wire format.
 
-    with FramePublisher("tcp://127.0.0.1:5555") as pub:          # binds a PUB socket on loopback
+    with FramePublisher("tcp://127.0.0.1:5555") as pub:          # binds a publisher on loopback
         pub.publish(intensity, ranges_m, azimuths_rad)              # [n_ranges, n_beams] array + geometry
+        pub.end_stream()                                            # the receivers end (docs/wire-format.md)
 
     with FrameSubscriber("tcp://127.0.0.1:5555", topics=("sonar/sim",)) as sub:
         frame = sub.recv(timeout_ms=1000)                           # SonarImage, or None on timeout
@@ -20,17 +21,19 @@ import zmq
 
 from sonar_realism.errors import ConfigError
 from sonar_realism.frames import SonarImage
-from sonar_realism.wire import FRAME_TYPE, decode_message, encode_frame
+from sonar_realism.wire import FRAME_TYPE, decode_message, encode_frame, encode_status
 
 
 class FramePublisher:
-    """A PUB socket that sends SonarImage frames on one topic; `seq` counts up from 0 unless given."""
+    """A publisher (an XPUB socket: a PUB that also hears who subscribes) that sends SonarImage frames on one
+    topic; `seq` counts up from 0 unless given. `end_stream()` ends the stream for every receiver."""
 
     def __init__(self, endpoint: str, topic: str = "sonar/sim", bind: bool = True,
                  context: zmq.Context | None = None, linger_ms: int = 1000) -> None:
         self.topic = topic
         self._next_seq = 0
-        self._socket = (context or zmq.Context.instance()).socket(zmq.PUB)
+        self._socket = (context or zmq.Context.instance()).socket(zmq.XPUB)
+        self._subscriptions: set[bytes] = set()  # the filters heard that take our topic
         # Frames still queued at close() get linger_ms to leave, so a short script's last frames arrive.
         self._socket.linger = linger_ms
         self.endpoint = _open(self._socket, endpoint, bind)
@@ -51,6 +54,40 @@ class FramePublisher:
         self._socket.send_multipart(parts, copy=False)
         self._next_seq = frame.seq + 1
 
+    def end_stream(self, reason: str = "finished", timeout_s: float = 10.0) -> bool:
+        """Tell every receiver this topic sends no more frames (docs/wire-format.md, "End of stream"). A PUB queue
+        drops what it cannot hold, so one marker after a burst may never arrive: it is sent again until every
+        subscriber has hung up (our nodes do on end of stream) or `timeout_s` has passed. True if all hung up."""
+        message = encode_status(self.topic, {"node": "client", "state": "stopped", "end_of_stream": True,
+                                             "reason": reason})
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self._hear_subscriptions(0)
+            if not self._subscriptions:
+                return True
+            try:
+                self._socket.send_multipart(message, flags=zmq.NOBLOCK)
+            except zmq.Again:
+                pass
+            if time.monotonic() > deadline:
+                return False
+            self._hear_subscriptions(_END_RESEND_MS)
+
+    def subscribed(self, timeout_ms: int = 0) -> bool:
+        """Whether a receiver takes this topic now (hearing subscriptions for up to `timeout_ms`). A PUB/SUB
+        receiver that connects late misses what was sent before it subscribed: wait for this before a short run."""
+        self._hear_subscriptions(timeout_ms)
+        return bool(self._subscriptions)
+
+    def _hear_subscriptions(self, timeout_ms: int) -> None:
+        """Take the (un)subscriptions the socket has heard: a byte 1 or 0, then the filter."""
+        topic = self.topic.encode("utf-8")
+        while self._socket.poll(timeout_ms, zmq.POLLIN):
+            timeout_ms = 0
+            notice = self._socket.recv()
+            if notice[:1] in (b"\x01", b"\x00") and topic.startswith(notice[1:]):
+                (self._subscriptions.add if notice[:1] == b"\x01" else self._subscriptions.discard)(notice[1:])
+
     def close(self) -> None:
         self._socket.close()
 
@@ -59,6 +96,10 @@ class FramePublisher:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+# How often end_stream() sends its marker again while subscribers are still there.
+_END_RESEND_MS = 50
 
 
 class FrameSubscriber:

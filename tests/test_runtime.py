@@ -358,6 +358,28 @@ def test_frames_on_a_topic_nobody_takes_are_counted_not_lost_silently(context, c
     assert "frames on topic 'sonar/sim2' are ignored" in caplog.text
 
 
+def test_a_client_ends_the_stream_after_a_burst_a_slow_node_could_not_keep(context):
+    # 3000 frames at once into a slow node (a queue of 8, 5 ms a frame): the publisher's queue overflows and a single
+    # end-of-stream marker right after it would be dropped with the frames; end_stream() sends it until the node has
+    # hung up, so the node ends instead of waiting for ever
+    from sonar_realism.client import FramePublisher
+
+    endpoint = f"inproc://rt{next(_ids)}/client"
+    with FramePublisher(endpoint, topic="sonar/sim", context=context) as publisher:
+        sink = CollectingSink("sink", SinkParams(delay_s=0.005), Wiring(
+            inputs={"frames": InputWiring(endpoint, "sonar/sim", InputPolicy("fifo", capacity=8))}), context)
+        thread = threading.Thread(target=sink.run, daemon=True)
+        thread.start()
+        wait_until(lambda: publisher.subscribed(10))
+        for seq in range(3000):
+            publisher.publish_frame(tiny_frame(seq))
+        assert publisher.end_stream(timeout_s=JOIN_TIMEOUT_S)
+        thread.join(JOIN_TIMEOUT_S)
+    assert not thread.is_alive()
+    status = sink.status()
+    assert 0 < len(sink.frames) < 3000 and status["frames_in"] == len(sink.frames) + status["dropped"]
+
+
 def wait_until(condition, timeout_s: float = JOIN_TIMEOUT_S) -> None:
     deadline = time.monotonic() + timeout_s
     while not condition():
