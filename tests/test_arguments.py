@@ -113,3 +113,16 @@ def test_cyclegan_only_flags_and_an_empty_sim_are_refused_for_the_cdfcvae(tmp_pa
         assert code == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_evaluate_names_the_one_setting_out_of_range(tmp_path, capsys):
+    code = main(["evaluate", "--real", str(tmp_path / "none"), "--out", str(tmp_path / "out"), "--n", "0"])
+    assert code == 2
+    assert "n_samples must be 1 or more, got 0" in capsys.readouterr().err
+
+
+def test_a_cdfcvae_run_without_cycle_1_says_so(tmp_path, capsys):
+    write_frames(_frames(6), tmp_path / "real")
+    main(["train", "--real", str(tmp_path / "real"), "--out", str(tmp_path / "run"), "--epochs1", "0",
+          "--grid", "32x32", "--device", "cpu"])
+    assert "epochs1 is 0 and no --cycle1 is given" in capsys.readouterr().err

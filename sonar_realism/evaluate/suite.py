@@ -70,8 +70,11 @@ class SuiteConfig:
     translate_batch: int = 8
 
     def validate(self) -> None:
-        if self.n_samples < 1 or self.c2st_folds < 2 or self.kid_subsets < 1 or self.translate_batch < 1:
-            raise ConfigError("n_samples, kid_subsets, translate_batch must be >= 1 and c2st_folds >= 2")
+        least = {"n_samples": (self.n_samples, 1), "c2st_folds": (self.c2st_folds, 2),
+                 "kid_subsets": (self.kid_subsets, 1), "translate_batch": (self.translate_batch, 1)}
+        for name, (value, low) in least.items():
+            if value < low:
+                raise ConfigError(f"evaluate: {name} must be {low} or more, got {value}")
         self.cnn.validate()
 
 

@@ -497,6 +497,9 @@ def fit(cfg: TrainConfig, real_dir: str | Path, sim_dir: str | Path | None, out:
     trainer = Trainer(cfg, out, pick_device(device), progress)
     if resume and cycle1 is not None:
         raise ConfigError("--cycle1 starts a run; --resume continues one: give one of them")
+    if cfg.epochs1 == 0 and cycle1 is None and not resume:
+        print("warning: epochs1 is 0 and no --cycle1 is given: the VAE is not trained on real frames, so cycle 2 "
+              "starts from random weights", file=sys.stderr)
     if not resume and (out / "state.json").is_file():
         raise ConfigError(f"--out {out} already holds a training run (state.json): continue it with --resume, or "
                           f"choose another --out")
