@@ -48,6 +48,12 @@ def test_raw_sim_folder_reads_back_with_masks_and_manifest(tmp_path: Path) -> No
         np.testing.assert_array_equal(a.intensity, b.intensity)
 
 
+def test_a_shorter_run_into_the_same_folder_leaves_no_masks_of_the_longer_one(tmp_path: Path) -> None:
+    out = tmp_path / "raw"
+    assert main(["simulate", "--n", "4", "--out", str(out), *SMALL_GRID]) == 0
+    assert main(["simulate", "--n", "2", "--out", str(out), "--seed", "1", *SMALL_GRID]) == 0
+    assert sorted(p.name for p in (out / "masks").glob("*.png")) == ["000000.png", "000001.png"]
+
 def test_masks_are_none_where_a_folder_has_none_and_an_error_where_one_does_not_fit(tmp_path: Path) -> None:
     out = tmp_path / "raw"
     assert main(["simulate", "--n", "2", "--out", str(out), *SMALL_GRID]) == 0

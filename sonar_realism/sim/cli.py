@@ -34,7 +34,7 @@ from sonar_realism.io import write_frames
 from sonar_realism.sim.calibrated import calibrated_chain, finish, sensor_for, simulate_calibrated
 from sonar_realism.sim.calibration import SHIPPED_CALIBRATIONS, load_calibration
 from sonar_realism.sim.effects import PIPELINE_ORDER, resolve_effects
-from sonar_realism.sim.masks import MASK_FILES, write_mask
+from sonar_realism.sim.masks import MASK_FILES, clear_masks, write_mask
 from sonar_realism.sim.scene import SCENES, build_scene
 from sonar_realism.sim.sensor import SENSORS, SensorConfig
 from sonar_realism.sim.simulate import simulate
@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param)
     effects = resolve_effects(args.effects, params)  # validates names and parameters before any work
     out = output_folder(args.out, "--out")
+    clear_masks(out)
 
     world = build_scene(args.scene, args.seed, sensor.max_range_m)
     poses = world.trajectory(args.n)
@@ -143,6 +144,7 @@ def run_calibrated(args: argparse.Namespace) -> int:
     params = parse_params(args.param)
     chain = calibrated_chain(calibration, args.effects or "all", params)
     out = output_folder(args.out, "--out")
+    clear_masks(out)
     objects: list[list[dict[str, Any]]] = []
     poses: list[dict[str, float]] = []
 

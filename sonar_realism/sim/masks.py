@@ -26,6 +26,13 @@ def mask_path(folder: str | Path, index: int) -> Path:
     return Path(folder) / MASKS_FOLDER / f"{index:06d}.png"
 
 
+def clear_masks(folder: str | Path) -> None:
+    """Remove the masks an earlier run left in `folder` (a shorter run must not leave the longer one's last masks
+    beside its frames)."""
+    for path in (Path(folder) / MASKS_FOLDER).glob("[0-9][0-9][0-9][0-9][0-9][0-9].png"):
+        path.unlink()
+
+
 def write_mask(folder: str | Path, index: int, mask: np.ndarray) -> None:
     path = mask_path(folder, index)
     path.parent.mkdir(parents=True, exist_ok=True)
