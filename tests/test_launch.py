@@ -373,6 +373,20 @@ def test_nodes_install_under_the_projects_name_and_never_as_a_top_level_nodes_pa
     assert resolve_node_type("translator").__module__ == "sonar_realism_nodes.translator"
 
 
+def kill_mid_run(runner, run: Path, node: str, index: Path, frames: int = 300) -> int:
+    """Once `index` lists `frames` frames (under load, mid-run), SIGKILL node `node`'s process and wait for the
+    launch `runner` to end; returns how many frames the index listed just before the kill."""
+    deadline = time.monotonic() + PROCESS_TIMEOUT_S
+    while not (index.exists() and index.read_text().count("\n") >= frames):
+        assert runner.is_alive() and time.monotonic() < deadline, "no frames flowed"
+        time.sleep(0.02)
+    listed = index.read_text().count("\n") - 1
+    processes = _processes_mentioning(str(run / "nodes" / f"{node}.json"))
+    assert len(processes) == 1
+    os.kill(processes[0], signal.SIGKILL)
+    runner.join(PROCESS_TIMEOUT_S)
+    return listed
+
 def test_lossless_edges_lose_nothing_when_the_translator_is_killed_mid_run(tmp_path):
     """SIGKILL the translator process while frames are in flight: the restarted one gets every frame it had
     not passed on, the recorder drops what it already had, and all 2,000 frames arrive exactly once, in order."""
@@ -396,15 +410,7 @@ def test_lossless_edges_lose_nothing_when_the_translator_is_killed_mid_run(tmp_p
     result: list = []
     runner = threading.Thread(target=lambda: result.append(launch(graph, install_signal_handlers=False)))
     runner.start()
-    index = run / "translated" / "frames.jsonl"
-    deadline = time.monotonic() + PROCESS_TIMEOUT_S
-    while not (index.exists() and index.read_text().count("\n") >= 300):  # under load, mid-run
-        assert runner.is_alive() and time.monotonic() < deadline, "no frames flowed"
-        time.sleep(0.02)
-    translators = _processes_mentioning(str(run / "nodes" / "translator.json"))
-    assert len(translators) == 1
-    os.kill(translators[0], signal.SIGKILL)
-    runner.join(PROCESS_TIMEOUT_S)
+    kill_mid_run(runner, run, "translator", run / "translated" / "frames.jsonl")
     assert not runner.is_alive() and result
     code, summary = result[0]
     assert code == 0 and summary["translator"]["restarts"] == 1
@@ -430,16 +436,7 @@ def test_a_recorder_killed_mid_run_goes_on_with_its_recording(tmp_path):
     result: list = []
     runner = threading.Thread(target=lambda: result.append(launch(graph, install_signal_handlers=False)))
     runner.start()
-    index = run / "copy" / "frames.jsonl"
-    deadline = time.monotonic() + PROCESS_TIMEOUT_S
-    while not (index.exists() and index.read_text().count("\n") >= 300):
-        assert runner.is_alive() and time.monotonic() < deadline, "no frames flowed"
-        time.sleep(0.02)
-    before = index.read_text().count("\n") - 1
-    recorders = _processes_mentioning(str(run / "nodes" / "recorder.json"))
-    assert len(recorders) == 1
-    os.kill(recorders[0], signal.SIGKILL)
-    runner.join(PROCESS_TIMEOUT_S)
+    before = kill_mid_run(runner, run, "recorder", run / "copy" / "frames.jsonl")
     assert not runner.is_alive() and result
     code, summary = result[0]
     assert code == 0 and summary["recorder"]["restarts"] == 1
