@@ -43,10 +43,7 @@ class RecorderNode(Node):
                                    resume=self.restarted)
 
     def process(self, input_name: str, frames: list[SonarImage]) -> None:
-        for frame in frames:  # the whole batch first: a batch with a bad frame is retried frame by frame
-            self.recording.check(frame)
-        for frame in frames:
-            self.recording.add(frame)
+        self.recording.add_batch(frames)
 
     def finish(self) -> None:
         summary = self.recording.close()

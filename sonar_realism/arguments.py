@@ -5,6 +5,7 @@ names a folder that cannot be made, nor write into the recording it reads."""
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 
@@ -32,6 +33,18 @@ def _whole(text: str) -> int:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+
+
+def json_object(path: str | Path, flag: str, what: str) -> dict:
+    """The JSON object in file `path` (ConfigError naming `flag` if unreadable or not an object); `what` says
+    what its keys are, for the message."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{flag} {path}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{flag} {path}: expected a JSON object of {what}, got {type(data).__name__}")
+    return data
 
 
 def output_folder(path: str | Path, flag: str) -> Path:

@@ -5,16 +5,14 @@ figures."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections import Counter
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from sonar_realism.arguments import non_negative_int, output_folder
+from sonar_realism.arguments import json_object, non_negative_int, output_folder
 from sonar_realism.config import from_dict, parse_grid
 from sonar_realism.diagnose.config import DiagnoseConfig
 from sonar_realism.diagnose.diagnosis import diagnose
@@ -51,14 +49,7 @@ def run(args: argparse.Namespace) -> int:
     settings = {"normalize": args.normalize, "seed": args.seed,
                 "effects": [e.strip() for e in args.effects.split(",") if e.strip()]}
     if args.config:
-        try:
-            given = json.loads(Path(args.config).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ConfigError(f"--config {args.config}: {exc}") from exc
-        if not isinstance(given, dict):
-            raise ConfigError(f"--config {args.config}: expected a JSON object of DiagnoseConfig fields, got "
-                              f"{type(given).__name__}")
-        settings.update(given)
+        settings.update(json_object(args.config, "--config", "DiagnoseConfig fields"))
     config = from_dict(DiagnoseConfig, settings, where="diagnose config")
     output_folder(args.out, "--out")
     scene = SceneStart.from_calibration(load_calibration(args.calibration)) if args.calibration else None

@@ -20,7 +20,11 @@ from sonar_realism.frames import SonarImage
 from sonar_realism.io import folder, npz, oculus, rosbag
 from sonar_realism.io.report import ReadReport
 
-__all__ = ["ReadReport", "load_recording", "read_frames", "write_frames", "sniff"]
+__all__ = ["FILE_SUFFIXES", "ReadReport", "load_recording", "read_frames", "write_frames", "sniff"]
+
+# write_frames writes a file for these suffixes (an NPZ, a ROS 2 MCAP bag), a frames folder for any other path
+_FILE_WRITERS = {".npz": npz.write_npz, ".mcap": rosbag.write_mcap}
+FILE_SUFFIXES = tuple(_FILE_WRITERS)
 
 _HEAD_BYTES = 64
 
@@ -98,11 +102,8 @@ def write_frames(frames: Iterable[SonarImage], path: str | Path) -> int:
     All are streamed (one frame in memory at a time) and read back losslessly by `read_frames`.
     """
     path = Path(path)
-    if path.suffix.lower() == ".npz":
-        return npz.write_npz(frames, path)
-    if path.suffix.lower() == ".mcap":
-        return rosbag.write_mcap(frames, path)
-    return folder.write_frames_folder(frames, path)
+    writer = _FILE_WRITERS.get(path.suffix.lower())
+    return writer(frames, path) if writer is not None else folder.write_frames_folder(frames, path)
 
 
 def _read_plain_folder(path: Path, report: ReadReport) -> Iterator[SonarImage]:

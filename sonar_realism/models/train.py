@@ -36,7 +36,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 from tqdm import tqdm
 
-from sonar_realism.arguments import non_negative_int
+from sonar_realism.arguments import json_object, non_negative_int
 from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.frames import SonarImage
@@ -573,15 +573,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    data: dict[str, Any] = {}
-    if args.config:
-        try:
-            data = json.loads(Path(args.config).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ConfigError(f"--config {args.config}: {exc}") from exc
-        if not isinstance(data, dict):
-            raise ConfigError(f"--config {args.config}: expected a JSON object of TrainConfig keys, got "
-                              f"{type(data).__name__}")
+    data: dict[str, Any] = json_object(args.config, "--config", "TrainConfig keys") if args.config else {}
     flags = {"epochs1": args.epochs1, "epochs2": args.epochs2, "batch_size": args.batch_size,
              "max_frames": args.max_frames, "seed": args.seed}
     data.update({k: v for k, v in flags.items() if v is not None})

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from sonar_realism.arguments import json_object
 from sonar_realism.config import from_dict, parse_grid, to_dict
 from sonar_realism.errors import ConfigError, FormatError
 from sonar_realism.models.cyclegan import (
@@ -115,7 +116,7 @@ def train(args: argparse.Namespace) -> int:
     if crop is not None and (crop < 16 or crop % 4):
         raise ConfigError(f"--crop: a multiple of 4 and >= 16 (two stride-2 levels), got {crop}")
     grid = None if crop is not None else cyclegan_grid(args.grid or "128x128")
-    overrides = json.loads(Path(args.config).read_text()) if args.config else {}
+    overrides = json_object(args.config, "--config", "CycleGANConfig keys") if args.config else {}
     config = from_dict(CycleGANConfig, overrides, where=str(args.config or "config"))
     device = pick_device(args.device)
     torch.manual_seed(args.seed)

@@ -159,11 +159,11 @@ def _chunks(frames: Iterator[SonarImage], size: int, limit: int | None) -> Itera
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from sonar_realism.io import ReadReport, read_frames, write_frames
+    from sonar_realism.io import FILE_SUFFIXES, ReadReport, read_frames, write_frames
     from sonar_realism.plots import image_grid
 
     not_the_input(args.out, args.inp, "--out", "--in")
-    if Path(args.out).suffix.lower() in (".npz", ".mcap"):
+    if Path(args.out).suffix.lower() in FILE_SUFFIXES:
         output_file(args.out, "--out")
     else:
         output_folder(args.out, "--out")

@@ -54,7 +54,7 @@ class Recording:
         self._writer.start()
 
     @staticmethod
-    def check(frame: SonarImage) -> None:
+    def _check(frame: SonarImage) -> None:
         """FrameError if `frame` cannot be written (its meta is not JSON-able): checked before a frame is queued,
         so one bad frame is refused alone instead of stopping the writer and every frame after it."""
         try:
@@ -63,8 +63,18 @@ class Recording:
             raise FrameError(f"meta: frame seq {frame.seq} meta is not JSON-able ({error})") from error
 
     def add(self, frame: SonarImage) -> None:
+        self.add_batch([frame])
+
+    def add_batch(self, frames: list[SonarImage]) -> None:
+        """Every frame of `frames`, or none of them: each is checked before any is queued (a node retries a batch
+        that failed frame by frame, and must not write a frame twice)."""
         self._raise_writer_error()
-        self.check(frame)
+        for frame in frames:
+            self._check(frame)
+        for frame in frames:
+            self._queue(frame)
+
+    def _queue(self, frame: SonarImage) -> None:
         if self._written_through is not None and frame.seq <= self._written_through:
             self.already_written += 1
             return
